@@ -1,0 +1,162 @@
+"""Pure functions on triangle-mesh connectivity and basic per-face geometry.
+
+Symbols: V vertices, F faces, E undirected edges, B batch.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from neuralcol.errors import MeshFileError
+
+
+class EdgeTopology(NamedTuple):
+    """Undirected edges of a triangle mesh and how many faces use each.
+
+    Attributes:
+        edges: (E, 2) int64, each row sorted (i < j), rows sorted lexicographically.
+        face_count: (E,) int64, number of faces incident to each edge.
+        face_edges: (F, 3) int64, index into ``edges`` of face edge (v0,v1), (v1,v2), (v2,v0).
+    """
+
+    edges: np.ndarray
+    face_count: np.ndarray
+    face_edges: np.ndarray
+
+
+def edge_topology(faces: np.ndarray) -> EdgeTopology:
+    """Undirected edges of a triangle mesh.
+
+    Args:
+        faces: (F, 3) integer vertex indices.
+
+    Returns:
+        EdgeTopology with edges (E, 2), face_count (E,), face_edges (F, 3).
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=-1).reshape(-1, 2)  # (3F, 2)
+    half = np.sort(half, axis=1)
+    edges, inverse, counts = np.unique(half, axis=0, return_inverse=True, return_counts=True)
+    return EdgeTopology(edges, counts.astype(np.int64), inverse.reshape(-1, 3).astype(np.int64))
+
+
+def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Triangle areas.
+
+    Args:
+        vertices: (..., V, 3) float.
+        faces: (F, 3) int.
+
+    Returns:
+        (..., F) float areas.
+    """
+    tri = vertices[..., faces, :]  # (..., F, 3, 3)
+    cross = np.cross(tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :])
+    return 0.5 * np.linalg.norm(cross, axis=-1)
+
+
+def mean_edge_length(vertices: np.ndarray, edges: np.ndarray) -> float:
+    """Mean length of the given edges (vertices (V, 3), edges (E, 2))."""
+    return float(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=-1).mean())
+
+
+def bbox_diagonal(vertices: np.ndarray) -> np.ndarray:
+    """Bounding-box diagonal length of (..., V, 3) vertices, shape (...)."""
+    return np.linalg.norm(vertices.max(axis=-2) - vertices.min(axis=-2), axis=-1)
+
+
+def check_faces(faces: np.ndarray, n_vertices: int, where: str) -> EdgeTopology:
+    """Validate a face array: triangles, indices in range, no repeated index, manifold edges.
+
+    Args:
+        faces: (F, 3) int vertex indices.
+        n_vertices: number of vertices V.
+        where: name of the file or array, used in error messages.
+
+    Returns:
+        The EdgeTopology of ``faces``.
+
+    Raises:
+        MeshFileError: naming ``where``, the first offending face or edge, and the fix.
+    """
+    faces = np.asarray(faces)
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise MeshFileError(
+            f"{where}: faces have shape {faces.shape}, expected (F, 3) triangles with F > 0; "
+            "triangulate the mesh first"
+        )
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise MeshFileError(f"{where}: faces have dtype {faces.dtype}, expected integer vertex indices")
+    bad = np.nonzero((faces < 0) | (faces >= n_vertices))[0]
+    if len(bad):
+        raise MeshFileError(
+            f"{where}: face {bad[0]} = {faces[bad[0]].tolist()} refers to a vertex outside 0..{n_vertices - 1}"
+        )
+    rep = np.nonzero((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2]))[0]
+    if len(rep):
+        raise MeshFileError(
+            f"{where}: face {rep[0]} = {faces[rep[0]].tolist()} repeats a vertex (degenerate triangle); "
+            "remove degenerate faces"
+        )
+    topo = edge_topology(faces)
+    nm = np.nonzero(topo.face_count > 2)[0]
+    if len(nm):
+        i, j = topo.edges[nm[0]]
+        raise MeshFileError(
+            f"{where}: non-manifold mesh, edge ({i}, {j}) is shared by {topo.face_count[nm[0]]} triangles "
+            f"({len(nm)} such edges); every edge must belong to at most two triangles"
+        )
+    return topo
+
+
+def check_vertices(vertices: np.ndarray, faces: np.ndarray, where: str, rel_area_tol: float) -> None:
+    """Validate vertex coordinates of one mesh: finite, and no zero-area face.
+
+    Args:
+        vertices: (V, 3) float.
+        faces: (F, 3) int, already checked by :func:`check_faces`.
+        where: file name for error messages.
+        rel_area_tol: a face is zero-area when its area is below ``rel_area_tol * mean face area``.
+
+    Raises:
+        MeshFileError: naming ``where`` and the first offending vertex or face.
+    """
+    bad = np.nonzero(~np.isfinite(vertices).all(axis=-1))[0]
+    if len(bad):
+        raise MeshFileError(
+            f"{where}: vertex {bad[0]} has non-finite coordinates {vertices[bad[0]].tolist()} "
+            f"({len(bad)} such vertices); fix or drop this mesh"
+        )
+    areas = face_areas(vertices, faces)
+    mean = float(areas.mean())
+    zero = np.nonzero(areas <= rel_area_tol * mean)[0]
+    if len(zero) or not np.isfinite(mean):
+        f0 = int(zero[0]) if len(zero) else 0
+        raise MeshFileError(
+            f"{where}: face {f0} = {faces[f0].tolist()} has zero area ({areas[f0]:.3g}, mean {mean:.3g}; "
+            f"{len(zero)} such faces); collapse or remove degenerate faces"
+        )
+
+
+def vertex_neighbors(edges: np.ndarray, n_vertices: int) -> np.ndarray:
+    """Padded 1-ring neighbor table.
+
+    Args:
+        edges: (E, 2) undirected edges.
+        n_vertices: V.
+
+    Returns:
+        (V, K) int64 neighbor indices, K the maximal valence, padded with -1.
+    """
+    both = np.concatenate([edges, edges[:, ::-1]], axis=0)  # (2E, 2)
+    order = np.lexsort((both[:, 1], both[:, 0]))
+    both = both[order]
+    counts = np.bincount(both[:, 0], minlength=n_vertices)
+    k = int(counts.max()) if len(counts) else 0
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    slot = np.arange(len(both)) - start[both[:, 0]]
+    table = np.full((n_vertices, k), -1, dtype=np.int64)
+    table[both[:, 0], slot] = both[:, 1]
+    return table

@@ -1,0 +1,85 @@
+"""Shared fixtures: real data from the configured location, small synthetic meshes built in code."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+# SCAPE is read where it lives (never copied): $NEURALCOL_DATA/scape, else ../shared/data/scape.
+DATA_DIR = Path(os.environ.get("NEURALCOL_DATA", ROOT.parent / "shared" / "data"))
+SCAPE_DIR = DATA_DIR / "scape"
+
+
+@pytest.fixture(scope="session")
+def scape_dir() -> Path:
+    if not (SCAPE_DIR / "1.obj").is_file():
+        pytest.skip(f"SCAPE not found at {SCAPE_DIR}; set NEURALCOL_DATA to the folder holding scape/")
+    return SCAPE_DIR
+
+
+@pytest.fixture(scope="session")
+def scape(scape_dir):
+    from neuralcol import load_mesh_dataset
+
+    return load_mesh_dataset(scape_dir, dtype=torch.float64)
+
+
+@pytest.fixture(scope="session")
+def scape_acap(scape):
+    from neuralcol import ACAP
+
+    return ACAP(scape.vertices[0], scape.faces)
+
+
+def make_tube(n_rings: int = 24, n_around: int = 12, radius: float = 0.2, length: float = 2.0,
+              capped: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Closed tube along +z (rings of a cylinder plus two cap centre vertices).
+
+    Returns:
+        vertices (V, 3) float64 and faces (F, 3) int64; ring 0 is at z = 0.
+    """
+    z = np.linspace(0.0, length, n_rings)
+    ang = np.linspace(0.0, 2 * np.pi, n_around, endpoint=False)
+    ring = np.stack([radius * np.cos(ang), radius * np.sin(ang)], -1)  # (A, 2)
+    verts = np.concatenate([np.repeat(ring[None], n_rings, 0), np.repeat(z[:, None, None], n_around, 1)], -1)
+    verts = verts.reshape(-1, 3)
+    faces = []
+    for r in range(n_rings - 1):
+        for a in range(n_around):
+            i0, i1 = r * n_around + a, r * n_around + (a + 1) % n_around
+            j0, j1 = i0 + n_around, i1 + n_around
+            faces += [[i0, i1, j1], [i0, j1, j0]]
+    if capped:
+        bottom, top = len(verts), len(verts) + 1
+        verts = np.concatenate([verts, [[0, 0, 0], [0, 0, length]]])
+        last = (n_rings - 1) * n_around
+        for a in range(n_around):
+            faces.append([bottom, (a + 1) % n_around, a])
+            faces.append([top, last + a, last + (a + 1) % n_around])
+    return verts, np.asarray(faces, dtype=np.int64)
+
+
+def twist(vertices: np.ndarray, total_angle: float, length: float = 2.0) -> np.ndarray:
+    """Twist about the z axis, angle growing linearly from 0 at z = 0 to ``total_angle`` at z = length."""
+    phi = total_angle * vertices[:, 2] / length
+    c, s = np.cos(phi), np.sin(phi)
+    x, y = vertices[:, 0], vertices[:, 1]
+    return np.stack([c * x - s * y, s * x + c * y, vertices[:, 2]], -1)
+
+
+@pytest.fixture
+def tube():
+    return make_tube()
+
+
+@pytest.fixture
+def icosphere():
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=1)
+    return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
