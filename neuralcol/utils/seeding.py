@@ -16,5 +16,5 @@ def seed_everything(seed: int | None) -> None:
     if seed is None:
         return
     random.seed(seed)
-    np.random.seed(seed % 2**32)
+    np.random.seed(seed % 2**32)  # noqa: NPY002 (third-party code may use the legacy global RNG)
     torch.manual_seed(seed)
