@@ -85,12 +85,14 @@ class DatasetFeatures(NamedTuple):
         features: (N, V, 9) float raw features.
         normalizer: FeatureNormalizer fitted on ``features[fit_index]``.
         reference_index: index of the rest mesh in the data set.
+        from_cache: the features were read from the cache instead of computed.
     """
 
     acap: ACAP
     features: torch.Tensor
     normalizer: FeatureNormalizer
     reference_index: int
+    from_cache: bool
 
 
 def dataset_features(
@@ -130,12 +132,13 @@ def dataset_features(
         h.update(json.dumps([reference_index, acap_kwargs], sort_keys=True).encode())
         cache = Path(cache_dir).expanduser() / f"acap_{h.hexdigest()[:16]}.npz"
     feats = None
+    from_cache = False
     if cache is not None and cache.is_file():
         try:
             with np.load(cache) as z:
                 feats = torch.from_numpy(z["features"])
-            if feats.shape != (n, dataset.n_vertices, FEATURE_DIM):
-                feats = None
+            from_cache = feats.shape == (n, dataset.n_vertices, FEATURE_DIM)
+            feats = feats if from_cache else None
         except (OSError, ValueError, KeyError):
             feats = None
     if feats is None:
@@ -147,4 +150,4 @@ def dataset_features(
             os.replace(tmp, cache)
     feats = feats.to(dataset.vertices.dtype)
     normalizer = FeatureNormalizer(**normalizer_kwargs).fit(feats[torch.as_tensor(idx)])
-    return DatasetFeatures(acap, feats, normalizer, reference_index)
+    return DatasetFeatures(acap, feats, normalizer, reference_index, from_cache)
