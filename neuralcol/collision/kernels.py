@@ -1,0 +1,825 @@
+"""Compiled (numba) geometric kernels of the exact labeler: broadphase, triangle tests and distances.
+
+Every function here is pure: arrays in, arrays or scalars out. Triangles are given as vertex arrays
+``verts (V, 3) float64`` plus ``faces (F, 3) int64``. See :mod:`neuralcol.collision.labeler` for how they
+combine into the verdict and the penetration depth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+_EPS_AXIS = 1e-24  # squared length below which a SAT axis is degenerate (relative to scale^4)
+
+
+# ----------------------------------------------------------------------------------------- vectors
+@njit(cache=True, inline="always")
+def _sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+@njit(cache=True, inline="always")
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True, inline="always")
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@njit(cache=True, inline="always")
+def _scale(a, s):
+    return (a[0] * s, a[1] * s, a[2] * s)
+
+
+@njit(cache=True, inline="always")
+def _add(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+
+@njit(cache=True, inline="always")
+def _pt(verts, i):
+    return (verts[i, 0], verts[i, 1], verts[i, 2])
+
+
+# ----------------------------------------------------------------------------------------- broadphase
+@njit(cache=True)
+def triangle_aabbs(verts, faces, inflate):
+    """Axis-aligned boxes of all triangles, each grown by ``inflate`` on every side -> (F, 3), (F, 3)."""
+    n = faces.shape[0]
+    lo = np.empty((n, 3))
+    hi = np.empty((n, 3))
+    for f in range(n):
+        for d in range(3):
+            a = verts[faces[f, 0], d]
+            b = verts[faces[f, 1], d]
+            c = verts[faces[f, 2], d]
+            lo[f, d] = min(a, b, c) - inflate
+            hi[f, d] = max(a, b, c) + inflate
+    return lo, hi
+
+
+@njit(cache=True)
+def grid_pairs(lo, hi, cell):
+    """All pairs (a < b) of boxes that overlap, found with a uniform grid of cell size ``cell``.
+
+    Each box is entered in every cell it touches; a pair is reported once, by the cell that holds the
+    lower corner of the two boxes' intersection. Cost is linear in the number of boxes for boxes of
+    bounded size.
+
+    Returns:
+        (P, 2) int64 pairs.
+    """
+    n = lo.shape[0]
+    origin = np.empty(3)
+    for d in range(3):
+        origin[d] = lo[:, d].min()
+    inv = 1.0 / cell
+    ilo = np.empty((n, 3), dtype=np.int64)
+    ihi = np.empty((n, 3), dtype=np.int64)
+    total = 0
+    for f in range(n):
+        cnt = 1
+        for d in range(3):
+            ilo[f, d] = int((lo[f, d] - origin[d]) * inv)
+            ihi[f, d] = int((hi[f, d] - origin[d]) * inv)
+            cnt *= ihi[f, d] - ilo[f, d] + 1
+        total += cnt
+    dims = np.empty(3, dtype=np.int64)
+    for d in range(3):
+        dims[d] = ihi[:, d].max() + 1
+    keys = np.empty(total, dtype=np.int64)
+    ids = np.empty(total, dtype=np.int64)
+    k = 0
+    for f in range(n):
+        for x in range(ilo[f, 0], ihi[f, 0] + 1):
+            for y in range(ilo[f, 1], ihi[f, 1] + 1):
+                for z in range(ilo[f, 2], ihi[f, 2] + 1):
+                    keys[k] = (x * dims[1] + y) * dims[2] + z
+                    ids[k] = f
+                    k += 1
+    order = np.argsort(keys, kind="quicksort")
+    keys = keys[order]
+    ids = ids[order]
+    cap = max(16, 8 * n)
+    out = np.empty((cap, 2), dtype=np.int64)
+    m = 0
+    start = 0
+    while start < total:
+        end = start + 1
+        while end < total and keys[end] == keys[start]:
+            end += 1
+        key = keys[start]
+        cz = key % dims[2]
+        cy = (key // dims[2]) % dims[1]
+        cx = key // (dims[2] * dims[1])
+        for i in range(start, end):
+            a = ids[i]
+            for j in range(i + 1, end):
+                b = ids[j]
+                ok = True
+                for d in range(3):
+                    if lo[a, d] > hi[b, d] or lo[b, d] > hi[a, d]:
+                        ok = False
+                        break
+                if not ok:
+                    continue
+                # report in the cell of the lower corner of the intersection box only
+                if (max(ilo[a, 0], ilo[b, 0]) != cx or max(ilo[a, 1], ilo[b, 1]) != cy
+                        or max(ilo[a, 2], ilo[b, 2]) != cz):
+                    continue
+                if m == cap:
+                    cap *= 2
+                    grown = np.empty((cap, 2), dtype=np.int64)
+                    grown[:m] = out[:m]
+                    out = grown
+                out[m, 0] = min(a, b)
+                out[m, 1] = max(a, b)
+                m += 1
+        start = end
+    return out[:m]
+
+
+@njit(cache=True)
+def shared_vertex_count(faces, a, b):
+    """Number of vertices triangles a and b share (0, 1, 2 or 3)."""
+    s = 0
+    for i in range(3):
+        for j in range(3):
+            if faces[a, i] == faces[b, j]:
+                s += 1
+    return s
+
+
+# ----------------------------------------------------------------------------------------- SAT depth
+@njit(cache=True)
+def _sat_axis(axis, p0, p1, p2, q0, q1, q2, best):
+    ll = _dot(axis, axis)
+    if ll <= 0.0:
+        return best
+    inv = 1.0 / np.sqrt(ll)
+    a0 = _dot(axis, p0) * inv
+    a1 = _dot(axis, p1) * inv
+    a2 = _dot(axis, p2) * inv
+    b0 = _dot(axis, q0) * inv
+    b1 = _dot(axis, q1) * inv
+    b2 = _dot(axis, q2) * inv
+    # translation along the axis that makes the two intervals disjoint (shift either way)
+    ov = min(max(a0, a1, a2) - min(b0, b1, b2), max(b0, b1, b2) - min(a0, a1, a2))
+    return min(best, ov)
+
+
+@njit(cache=True)
+def triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale):
+    """Translational penetration depth of two triangles by the separating-axis theorem.
+
+    The candidate axes are the two normals, the 9 edge-edge cross products and the 6 in-plane edge normals
+    (normal x edge), i.e. every face normal of the Minkowski difference of the two flat triangles; the
+    depth is the smallest overlap of the projections over these axes. It is > 0 iff the triangles' relative
+    interiors overlap in 3D, is 0 when they only touch (e.g. at a shared vertex), is continuous in the
+    vertex positions, and when negative it is minus the largest separation along a candidate axis. Along
+    one axis the depth is the shift that makes the projections disjoint, ``min(maxA - minB, maxB - minA)``
+    (not the overlap length, which is 0 along a flat triangle's own normal).
+    ``scale`` (a typical edge length) sets what counts as a degenerate axis.
+    """
+    tiny = _EPS_AXIS * scale**4
+    e0 = _sub(p1, p0)
+    e1 = _sub(p2, p1)
+    e2 = _sub(p0, p2)
+    f0 = _sub(q1, q0)
+    f1 = _sub(q2, q1)
+    f2 = _sub(q0, q2)
+    n = _cross(e0, _sub(p2, p0))
+    m = _cross(f0, _sub(q2, q0))
+    best = np.inf
+    best = _sat_axis(n, p0, p1, p2, q0, q1, q2, best)
+    best = _sat_axis(m, p0, p1, p2, q0, q1, q2, best)
+    for ea in (e0, e1, e2):
+        for fb in (f0, f1, f2):
+            ax = _cross(ea, fb)
+            if _dot(ax, ax) > tiny:
+                best = _sat_axis(ax, p0, p1, p2, q0, q1, q2, best)
+    for ea in (e0, e1, e2):
+        ax = _cross(n, ea)
+        if _dot(ax, ax) > tiny:
+            best = _sat_axis(ax, p0, p1, p2, q0, q1, q2, best)
+    for fb in (f0, f1, f2):
+        ax = _cross(m, fb)
+        if _dot(ax, ax) > tiny:
+            best = _sat_axis(ax, p0, p1, p2, q0, q1, q2, best)
+    return best
+
+
+@njit(cache=True)
+def plane_separated(p0, p1, p2, q0, q1, q2, margin):
+    """True if one triangle lies strictly beyond ``margin`` on one side of the other's plane (then their
+    SAT depth is < -margin, i.e. they are apart)."""
+    for side in range(2):
+        a0, a1, a2 = (p0, p1, p2) if side == 0 else (q0, q1, q2)
+        b0, b1, b2 = (q0, q1, q2) if side == 0 else (p0, p1, p2)
+        n = _cross(_sub(a1, a0), _sub(a2, a0))
+        ln = np.sqrt(_dot(n, n))
+        if ln <= 0.0:
+            continue
+        off = _dot(n, a0)
+        s0 = _dot(n, b0) - off
+        s1 = _dot(n, b1) - off
+        s2 = _dot(n, b2) - off
+        m = margin * ln
+        if (s0 > m and s1 > m and s2 > m) or (s0 < -m and s1 < -m and s2 < -m):
+            return True
+    return False
+
+
+@njit(cache=True)
+def near_table(rest, faces, pairs, cap, scale):
+    """Pairs that are within ``cap`` in the rest mesh, with their rest measure.
+
+    Args:
+        rest: (V, 3) rest vertices.
+        faces: (F, 3).
+        pairs: (P, 2) non-adjacent candidate pairs of the rest mesh (boxes grown by cap / 2).
+        cap: clearance cap.
+        scale: mean edge length.
+
+    Returns:
+        keys (N,) int64 sorted (``a * F + b``), rest (N,) float64: the corner angle for pairs sharing a
+        vertex, the SAT separation for the others (<= 0 when the pair touches at rest).
+    """
+    n_faces = faces.shape[0]
+    keys = np.empty(pairs.shape[0], dtype=np.int64)
+    vals = np.empty(pairs.shape[0])
+    m = 0
+    for k in range(pairs.shape[0]):
+        a = pairs[k, 0]
+        b = pairs[k, 1]
+        shared = shared_vertex_count(faces, a, b)
+        if shared == 1:
+            val = _corner_angle(rest, faces, a, b)
+        else:
+            if _tri_dist(rest, faces, a, b) >= cap:
+                continue
+            val = -triangle_pair_depth(_pt(rest, faces[a, 0]), _pt(rest, faces[a, 1]), _pt(rest, faces[a, 2]),
+                                       _pt(rest, faces[b, 0]), _pt(rest, faces[b, 1]), _pt(rest, faces[b, 2]),
+                                       scale)
+        keys[m] = a * n_faces + b
+        vals[m] = val
+        m += 1
+    order = np.argsort(keys[:m])
+    return keys[:m][order], vals[:m][order]
+
+
+@njit(cache=True)
+def pair_depths(verts, faces, pairs, scale):
+    """SAT depth of each candidate pair, (P,) float64."""
+    out = np.empty(pairs.shape[0])
+    for k in range(pairs.shape[0]):
+        a = pairs[k, 0]
+        b = pairs[k, 1]
+        out[k] = triangle_pair_depth(_pt(verts, faces[a, 0]), _pt(verts, faces[a, 1]), _pt(verts, faces[a, 2]),
+                                     _pt(verts, faces[b, 0]), _pt(verts, faces[b, 1]), _pt(verts, faces[b, 2]),
+                                     scale)
+    return out
+
+
+@njit(cache=True)
+def any_intersection(verts, faces, pairs, scale, tau):
+    """True as soon as one candidate pair has depth > tau (early exit; the verdict)."""
+    for k in range(pairs.shape[0]):
+        a = pairs[k, 0]
+        b = pairs[k, 1]
+        d = triangle_pair_depth(_pt(verts, faces[a, 0]), _pt(verts, faces[a, 1]), _pt(verts, faces[a, 2]),
+                                _pt(verts, faces[b, 0]), _pt(verts, faces[b, 1]), _pt(verts, faces[b, 2]), scale)
+        if d > tau:
+            return True
+    return False
+
+
+# ----------------------------------------------------------------------------------------- crossings
+@njit(cache=True, inline="always")
+def _orient(a, b, c, d):
+    """Signed volume (times 6) of tetrahedron (a, b, c, d): > 0 if d is on the side of (b-a)x(c-a)."""
+    return _dot(_cross(_sub(b, a), _sub(c, a)), _sub(d, a))
+
+
+@njit(cache=True)
+def segment_crosses_triangle(p, q, a, b, c):
+    """Signed volume of p w.r.t. triangle (a, b, c) if segment pq properly crosses its interior, else 0.
+
+    The segment crosses when p and q are strictly on opposite sides of the plane and the crossing point lies
+    inside the triangle (boundary included). The sign of the returned value tells on which side p is.
+    """
+    dp = _orient(a, b, c, p)
+    dq = _orient(a, b, c, q)
+    if dp * dq >= 0.0:
+        return 0.0
+    s0 = _orient(p, q, a, b)
+    s1 = _orient(p, q, b, c)
+    s2 = _orient(p, q, c, a)
+    if (s0 >= 0.0 and s1 >= 0.0 and s2 >= 0.0) or (s0 <= 0.0 and s1 <= 0.0 and s2 <= 0.0):
+        return dp
+    return 0.0
+
+
+# ----------------------------------------------------------------------------------------- distances
+@njit(cache=True)
+def point_triangle_distance(p, a, b, c):
+    """Euclidean distance from point p to triangle (a, b, c) (Ericson, Real-Time Collision Detection 5.1.5)."""
+    ab = _sub(b, a)
+    ac = _sub(c, a)
+    ap = _sub(p, a)
+    d1 = _dot(ab, ap)
+    d2 = _dot(ac, ap)
+    if d1 <= 0.0 and d2 <= 0.0:
+        x = a
+    else:
+        bp = _sub(p, b)
+        d3 = _dot(ab, bp)
+        d4 = _dot(ac, bp)
+        if d3 >= 0.0 and d4 <= d3:
+            x = b
+        else:
+            vc = d1 * d4 - d3 * d2
+            if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+                x = _add(a, _scale(ab, d1 / (d1 - d3)))
+            else:
+                cp = _sub(p, c)
+                d5 = _dot(ab, cp)
+                d6 = _dot(ac, cp)
+                if d6 >= 0.0 and d5 <= d6:
+                    x = c
+                else:
+                    vb = d5 * d2 - d1 * d6
+                    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+                        x = _add(a, _scale(ac, d2 / (d2 - d6)))
+                    else:
+                        va = d3 * d6 - d5 * d4
+                        if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+                            x = _add(b, _scale(_sub(c, b), (d4 - d3) / ((d4 - d3) + (d5 - d6))))
+                        else:
+                            denom = 1.0 / (va + vb + vc)
+                            x = _add(a, _add(_scale(ab, vb * denom), _scale(ac, vc * denom)))
+    d = _sub(p, x)
+    return np.sqrt(_dot(d, d))
+
+
+@njit(cache=True)
+def segment_segment_distance(p1, q1, p2, q2):
+    """Distance between segments p1q1 and p2q2 (Ericson 5.1.9)."""
+    d1 = _sub(q1, p1)
+    d2 = _sub(q2, p2)
+    r = _sub(p1, p2)
+    a = _dot(d1, d1)
+    e = _dot(d2, d2)
+    f = _dot(d2, r)
+    if a <= 1e-300 and e <= 1e-300:
+        return np.sqrt(_dot(r, r))
+    if a <= 1e-300:
+        s = 0.0
+        t = min(max(f / e, 0.0), 1.0)
+    else:
+        c = _dot(d1, r)
+        if e <= 1e-300:
+            t = 0.0
+            s = min(max(-c / a, 0.0), 1.0)
+        else:
+            b = _dot(d1, d2)
+            denom = a * e - b * b
+            s = min(max((b * f - c * e) / denom, 0.0), 1.0) if denom > 0.0 else 0.0
+            t = (b * s + f) / e
+            if t < 0.0:
+                t = 0.0
+                s = min(max(-c / a, 0.0), 1.0)
+            elif t > 1.0:
+                t = 1.0
+                s = min(max((b - c) / a, 0.0), 1.0)
+    diff = _sub(_add(p1, _scale(d1, s)), _add(p2, _scale(d2, t)))
+    return np.sqrt(_dot(diff, diff))
+
+
+@njit(cache=True)
+def triangle_distance(p0, p1, p2, q0, q1, q2):
+    """Distance between two triangles that do not intersect: min of 6 point-triangle and 9 edge-edge distances.
+
+    (For intersecting triangles the caller uses 0; this function does not test intersection.)
+    """
+    d = point_triangle_distance(p0, q0, q1, q2)
+    d = min(d, point_triangle_distance(p1, q0, q1, q2))
+    d = min(d, point_triangle_distance(p2, q0, q1, q2))
+    d = min(d, point_triangle_distance(q0, p0, p1, p2))
+    d = min(d, point_triangle_distance(q1, p0, p1, p2))
+    d = min(d, point_triangle_distance(q2, p0, p1, p2))
+    ps = (p0, p1, p2)
+    qs = (q0, q1, q2)
+    for i in range(3):
+        for j in range(3):
+            d = min(d, segment_segment_distance(ps[i], ps[(i + 1) % 3], qs[j], qs[(j + 1) % 3]))
+    return d
+
+
+@njit(cache=True, inline="always")
+def _unit(a):
+    n = np.sqrt(_dot(a, a))
+    if n <= 0.0:
+        return (0.0, 0.0, 0.0)
+    return _scale(a, 1.0 / n)
+
+
+@njit(cache=True)
+def _point_arc_chord(x, v1, v2):
+    """Chordal distance from unit vector x to the great-circle arc from unit v1 to unit v2 (shorter arc):
+    the Euclidean distance to the nearest unit vector on the arc."""
+    n = _unit(_cross(v1, v2))
+    xp = _sub(x, _scale(n, _dot(x, n)))
+    lxp = np.sqrt(_dot(xp, xp))
+    if lxp > 0.0 and _dot(_cross(v1, xp), n) >= 0.0 and _dot(_cross(xp, v2), n) >= 0.0:
+        return np.sqrt(max(0.0, 2.0 - 2.0 * lxp))  # |x - xp/|xp||, since x . xp = |xp|^2
+    d1 = _sub(x, v1)
+    d2 = _sub(x, v2)
+    return np.sqrt(min(_dot(d1, d1), _dot(d2, d2)))
+
+
+@njit(cache=True)
+def wedge_gap(p, a, b, c, d):
+    """Gap between the corners at shared vertex p of triangles (p, a, b) and (p, c, d).
+
+    The directions of a triangle at p form a great-circle arc on the unit sphere; the gap is 0 when the two
+    arcs cross (the triangles then overlap near p, beyond p itself) and otherwise the chordal distance
+    between the arcs (2 sin(angle / 2) of the smallest angle between them). Continuous in the vertices.
+    """
+    u1 = _unit(_sub(a, p))
+    u2 = _unit(_sub(b, p))
+    v1 = _unit(_sub(c, p))
+    v2 = _unit(_sub(d, p))
+    nu = _cross(u1, u2)
+    nv = _cross(v1, v2)
+    s1 = _dot(u1, nv)
+    s2 = _dot(u2, nv)
+    t1 = _dot(v1, nu)
+    t2 = _dot(v2, nu)
+    if s1 * s2 <= 0.0 and t1 * t2 <= 0.0:
+        x = _cross(nu, nv)
+        mu = _add(u1, u2)
+        mv = _add(v1, v2)
+        if (_dot(x, mu) >= 0.0 and _dot(x, mv) >= 0.0) or (_dot(x, mu) <= 0.0 and _dot(x, mv) <= 0.0):
+            return 0.0
+    g = _point_arc_chord(u1, v1, v2)
+    g = min(g, _point_arc_chord(u2, v1, v2))
+    g = min(g, _point_arc_chord(v1, u1, u2))
+    g = min(g, _point_arc_chord(v2, u1, u2))
+    return g
+
+
+# ----------------------------------------------------------------------------------------- labels
+@njit(cache=True)
+def drop_adjacent(faces, pairs):
+    keep = np.empty(pairs.shape[0], dtype=np.bool_)
+    for k in range(pairs.shape[0]):
+        keep[k] = shared_vertex_count(faces, pairs[k, 0], pairs[k, 1]) < 2
+    return pairs[keep]
+
+
+@njit(cache=True)
+def verdict_kernel(verts, faces, lo, hi, cell, scale, tau):
+    pairs = grid_pairs(lo, hi, cell)
+    for k in range(pairs.shape[0]):
+        a = pairs[k, 0]
+        b = pairs[k, 1]
+        shared = shared_vertex_count(faces, a, b)
+        if shared >= 2:
+            continue
+        if shared == 1 and not opposite_edges_cross(verts, faces, a, b):
+            continue
+        p0 = _pt(verts, faces[a, 0])
+        p1 = _pt(verts, faces[a, 1])
+        p2 = _pt(verts, faces[a, 2])
+        q0 = _pt(verts, faces[b, 0])
+        q1 = _pt(verts, faces[b, 1])
+        q2 = _pt(verts, faces[b, 2])
+        if shared == 0 and plane_separated(p0, p1, p2, q0, q1, q2, tau):
+            continue
+        if triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale) > tau:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _edge_id(adj_ptr, adj_idx, adj_eid, u, w):
+    for k in range(adj_ptr[u], adj_ptr[u + 1]):
+        if adj_idx[k] == w:
+            return adj_eid[k]
+    return -1
+
+
+@njit(cache=True)
+def _tri_dist(verts, faces, a, b):
+    return triangle_distance(_pt(verts, faces[a, 0]), _pt(verts, faces[a, 1]), _pt(verts, faces[a, 2]),
+                             _pt(verts, faces[b, 0]), _pt(verts, faces[b, 1]), _pt(verts, faces[b, 2]))
+
+
+@njit(cache=True, inline="always")
+def _lower_bound(sorted_keys, key):
+    """First index i with sorted_keys[i] >= key (binary search; np.searchsorted is slow on scalars)."""
+    lo = 0
+    hi = sorted_keys.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if sorted_keys[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, inline="always")
+def _box_gap(p0, p1, p2, q0, q1, q2):
+    """Distance between the axis-aligned boxes of two triangles (a lower bound of their distance)."""
+    g2 = 0.0
+    for d in range(3):
+        gap = max(min(q0[d], q1[d], q2[d]) - max(p0[d], p1[d], p2[d]),
+                  min(p0[d], p1[d], p2[d]) - max(q0[d], q1[d], q2[d]), 0.0)
+        g2 += gap * gap
+    return np.sqrt(g2)
+
+
+@njit(cache=True, inline="always")
+def _part_min(clear, part, faces, a, b, cap):
+    """Largest current clearance among the parts of the vertices of triangles a and b, capped."""
+    m = 0.0
+    for t in (a, b):
+        for i in range(3):
+            m = max(m, clear[part[faces[t, i]]])
+    return min(m, cap)
+
+
+@njit(cache=True)
+def opposite_edges_cross(verts, faces, a, b):
+    """For triangles sharing exactly one vertex: does the edge of one opposite the shared vertex cross the
+    other? (They overlap beyond the shared vertex only if one of these two edges crosses.)"""
+    for i in range(3):
+        for j in range(3):
+            if faces[a, i] == faces[b, j]:
+                pa = _pt(verts, faces[a, (i + 1) % 3])
+                pb = _pt(verts, faces[a, (i + 2) % 3])
+                qa = _pt(verts, faces[b, (j + 1) % 3])
+                qb = _pt(verts, faces[b, (j + 2) % 3])
+                p = _pt(verts, faces[a, i])
+                if segment_crosses_triangle(pa, pb, p, qa, qb) != 0.0:
+                    return True
+                return segment_crosses_triangle(qa, qb, p, pa, pb) != 0.0
+    return False
+
+
+@njit(cache=True)
+def _corner_angle(verts, faces, a, b):
+    """Wedge angle at the single shared vertex of triangles a and b."""
+    for i in range(3):
+        for j in range(3):
+            if faces[a, i] == faces[b, j]:
+                p = faces[a, i]
+                return wedge_gap(_pt(verts, p), _pt(verts, faces[a, (i + 1) % 3]),
+                                   _pt(verts, faces[a, (i + 2) % 3]), _pt(verts, faces[b, (j + 1) % 3]),
+                                   _pt(verts, faces[b, (j + 2) % 3]))
+    return 0.0
+
+
+@njit(cache=True)
+def label_mesh(verts, faces, pairs, scale, tau, cap, part, n_parts, adj_ptr, adj_idx, adj_eid,
+               n_edges, closed, orient, near_keys, near_rest):
+    """Counted pairs, per-part PD_i (K,) and per-vertex penetration depth (V,) of one mesh.
+
+    ``pairs`` are the non-adjacent pairs whose boxes are within ``cap``.
+    """
+    n_vert = verts.shape[0]
+    n_faces = faces.shape[0]
+    clear = np.full(n_parts, np.inf)
+    floor = np.zeros(n_parts)
+    blocked = np.zeros(n_edges, dtype=np.bool_)
+    # seeds: (behind vertex, other endpoint, pierced triangle)
+    seed_cap = 64
+    seeds = np.empty((seed_cap, 3), dtype=np.int64)
+    n_seeds = 0
+    n_pairs = 0
+    for k in range(pairs.shape[0]):
+        a = pairs[k, 0]
+        b = pairs[k, 1]
+        shared = shared_vertex_count(faces, a, b)
+        p0 = _pt(verts, faces[a, 0])
+        p1 = _pt(verts, faces[a, 1])
+        p2 = _pt(verts, faces[a, 2])
+        q0 = _pt(verts, faces[b, 0])
+        q1 = _pt(verts, faces[b, 1])
+        q2 = _pt(verts, faces[b, 2])
+        key = a * n_faces + b
+        idx = _lower_bound(near_keys, key)
+        near = idx < near_keys.shape[0] and near_keys[idx] == key
+        # ---- depth (SAT) where the triangles can overlap, and the clearance term c of the pair
+        if shared == 1:
+            if opposite_edges_cross(verts, faces, a, b):
+                depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
+            else:
+                depth = -1.0  # no overlap beyond the shared vertex
+        elif near:
+            depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
+        else:
+            lb = _box_gap(p0, p1, p2, q0, q1, q2)
+            if lb > 0.0 and lb >= _part_min(clear, part, faces, a, b, cap):
+                continue  # apart by more than any clearance this pair could still lower
+            if plane_separated(p0, p1, p2, q0, q1, q2, cap):
+                continue  # apart by more than cap: no overlap, clearance term >= cap
+            if plane_separated(p0, p1, p2, q0, q1, q2, tau):
+                depth = -1.0
+            else:
+                depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
+        if depth > 0.0:
+            c = 0.0
+        elif near:
+            r = near_rest[idx]
+            if r <= 0.0:
+                c = cap  # the pair touches in the rest mesh: no reference to measure against
+            elif shared == 1:
+                c = cap * _corner_angle(verts, faces, a, b) / r
+            else:
+                c = cap * (-depth) / r
+        else:
+            c = triangle_distance(p0, p1, p2, q0, q1, q2)
+        for t in (a, b):
+            for i in range(3):
+                pi = part[faces[t, i]]
+                if c < clear[pi]:
+                    clear[pi] = c
+        if depth <= 0.0:
+            continue
+        counted = depth > tau
+        if counted:
+            n_pairs += 1
+            for t in (a, b):
+                for i in range(3):
+                    pi = part[faces[t, i]]
+                    floor[pi] = max(floor[pi], depth - tau)
+        # ---- crossing edges of s through t and of t through s
+        for side in range(2):
+            s = a if side == 0 else b
+            t = b if side == 0 else a
+            ta = _pt(verts, faces[t, 0])
+            tb = _pt(verts, faces[t, 1])
+            tc = _pt(verts, faces[t, 2])
+            for i in range(3):
+                u = faces[s, i]
+                w = faces[s, (i + 1) % 3]
+                if u == faces[t, 0] or u == faces[t, 1] or u == faces[t, 2]:
+                    continue
+                if w == faces[t, 0] or w == faces[t, 1] or w == faces[t, 2]:
+                    continue
+                sd = segment_crosses_triangle(_pt(verts, u), _pt(verts, w), ta, tb, tc)
+                if sd == 0.0:
+                    continue
+                eid = _edge_id(adj_ptr, adj_idx, adj_eid, u, w)
+                if eid >= 0:
+                    blocked[eid] = True
+                if not counted:
+                    continue
+                behind = u if sd * orient < 0.0 else w
+                other = w if behind == u else u
+                if n_seeds == seed_cap:
+                    seed_cap *= 2
+                    grown = np.empty((seed_cap, 3), dtype=np.int64)
+                    grown[:n_seeds] = seeds[:n_seeds]
+                    seeds = grown
+                seeds[n_seeds, 0] = behind
+                seeds[n_seeds, 1] = other
+                seeds[n_seeds, 2] = t
+                n_seeds += 1
+    pos = floor.copy()
+    depth_v = np.zeros(n_vert)
+    if n_seeds > 0:
+        depth_v = _penetration_depths(verts, faces, seeds[:n_seeds], adj_ptr, adj_idx, adj_eid, blocked, closed)
+        for v in range(n_vert):
+            if depth_v[v] > pos[part[v]]:
+                pos[part[v]] = depth_v[v]
+    out = np.empty(n_parts)
+    for i in range(n_parts):
+        out[i] = pos[i] if pos[i] > 0.0 else -min(cap, clear[i])
+    return n_pairs, out, depth_v
+
+
+@njit(cache=True)
+def _seed_depth(verts, faces, seeds, k):
+    """Depth of a crossing edge: distance of its nearer endpoint to the pierced triangle."""
+    t = seeds[k, 2]
+    ta = _pt(verts, faces[t, 0])
+    tb = _pt(verts, faces[t, 1])
+    tc = _pt(verts, faces[t, 2])
+    return min(point_triangle_distance(_pt(verts, seeds[k, 0]), ta, tb, tc),
+               point_triangle_distance(_pt(verts, seeds[k, 1]), ta, tb, tc))
+
+
+@njit(cache=True)
+def _penetration_depths(verts, faces, seeds, adj_ptr, adj_idx, adj_eid, blocked, closed):
+    """Depth of every penetrating vertex (0 elsewhere), (V,). See the labeler's module docstring."""
+    n_vert = verts.shape[0]
+    depth = np.zeros(n_vert)
+    n_seeds = seeds.shape[0]
+    region = np.full(n_vert, -1, dtype=np.int64)
+    n_regions = 0
+    if closed:  # flood fill the penetrating regions, bounded by crossing edges
+        queue = np.empty(n_vert, dtype=np.int64)
+        for k in range(n_seeds):
+            s = seeds[k, 0]
+            if region[s] >= 0:
+                continue
+            head = 0
+            tail = 0
+            queue[tail] = s
+            tail += 1
+            region[s] = n_regions
+            while head < tail:
+                v = queue[head]
+                head += 1
+                for j in range(adj_ptr[v], adj_ptr[v + 1]):
+                    w = adj_idx[j]
+                    if region[w] >= 0 or blocked[adj_eid[j]]:
+                        continue
+                    region[w] = n_regions
+                    queue[tail] = w
+                    tail += 1
+            n_regions += 1
+    # a region that holds both ends of one of its crossing edges is not enclosed by the intersection
+    # curves (a local fold): it keeps its seeds only
+    valid = np.ones(n_regions, dtype=np.bool_)
+    for k in range(n_seeds):
+        r = region[seeds[k, 0]]
+        if r >= 0 and region[seeds[k, 1]] == r:
+            valid[r] = False
+    for k in range(n_seeds):
+        r = region[seeds[k, 0]]
+        if r < 0 or not valid[r]:
+            v = seeds[k, 0]
+            depth[v] = max(depth[v], _seed_depth(verts, faces, seeds, k))
+    if n_regions == 0:
+        return depth
+    # opposing triangles of each valid region: the triangles it pierces + triangles of the other regions
+    pierced = np.zeros((n_regions, faces.shape[0]), dtype=np.bool_)
+    for k in range(n_seeds):
+        pierced[region[seeds[k, 0]], seeds[k, 2]] = True
+    opp = np.empty(faces.shape[0], dtype=np.int64)
+    for r in range(n_regions):
+        if not valid[r]:
+            continue
+        n_opp = 0
+        for f in range(faces.shape[0]):
+            own = False
+            other = False
+            for i in range(3):
+                rf = region[faces[f, i]]
+                if rf == r:
+                    own = True
+                elif rf >= 0 and valid[rf]:
+                    other = True
+            if not own and (pierced[r, f] or other):
+                opp[n_opp] = f
+                n_opp += 1
+        if n_opp == 0:
+            continue
+        # centroid and radius of each opposing triangle: |p - c| - r is a lower bound of the distance
+        cen = np.empty((n_opp, 3))
+        rad = np.empty(n_opp)
+        for k in range(n_opp):
+            f = opp[k]
+            for d in range(3):
+                cen[k, d] = (verts[faces[f, 0], d] + verts[faces[f, 1], d] + verts[faces[f, 2], d]) / 3.0
+            r2 = 0.0
+            for i in range(3):
+                e = 0.0
+                for d in range(3):
+                    e += (verts[faces[f, i], d] - cen[k, d]) ** 2
+                r2 = max(r2, e)
+            rad[k] = np.sqrt(r2)
+        lb = np.empty(n_opp)
+        for v in range(n_vert):
+            if region[v] != r:
+                continue
+            p = _pt(verts, v)
+            k_best = 0
+            for k in range(n_opp):
+                e = 0.0
+                for d in range(3):
+                    e += (p[d] - cen[k, d]) ** 2
+                lb[k] = np.sqrt(e) - rad[k]
+                if lb[k] < lb[k_best]:
+                    k_best = k
+            f = opp[k_best]
+            best = point_triangle_distance(p, _pt(verts, faces[f, 0]), _pt(verts, faces[f, 1]),
+                                           _pt(verts, faces[f, 2]))
+            for k in range(n_opp):
+                if lb[k] >= best:
+                    continue
+                f = opp[k]
+                d = point_triangle_distance(p, _pt(verts, faces[f, 0]), _pt(verts, faces[f, 1]),
+                                            _pt(verts, faces[f, 2]))
+                if d < best:
+                    best = d
+            depth[v] = best
+    return depth

@@ -1,0 +1,238 @@
+"""Exact self-collision labels of triangle meshes: verdict, signed penetration depth PD and per-part PD_i.
+
+Definitions (units: those of the vertex coordinates; ``ell`` = mean edge length and ``diag`` = bounding-box
+diagonal of the rest mesh the labeler is built with):
+
+* **Adjacency.** Two triangles are adjacent iff they share an edge; adjacent pairs never count. Pairs that
+  share one vertex count when they overlap anywhere other than that vertex (a local fold); pairs sharing
+  no vertex count when they overlap at all.
+* **Pair depth.** ``d(s, t)`` = translational penetration depth of the two triangles, by the separating-axis
+  theorem over the 17 face normals of their Minkowski difference (2 normals, 9 edge-edge, 6 in-plane edge
+  normals). It is > 0 iff the triangles' interiors overlap, 0 when they merely touch (a shared vertex,
+  an edge lying on a face), continuous in the vertices, and exactly coplanar triangles (e.g. neighbours
+  from midpoint subdivision) get ``d <= 0``.
+* **Verdict.** The mesh self-collides iff some counted pair has ``d > tau`` with ``tau = touch_tol * ell``
+  (default ``touch_tol = 1e-6``): touching within ``tau`` does not count.
+* **Penetrating vertices.** Every edge of a counted pair that properly crosses the other triangle is a
+  crossing edge; its endpoint behind the pierced triangle (against the outward normal) is a seed. On a
+  closed mesh the penetrating region of a seed is everything reachable from it over edges that do not cross
+  the surface (a flood fill bounded by the intersection curves): the part of the surface inside another
+  part's volume. On a mesh with boundary (cloth) a region is its seeds only.
+* **Depth.** A penetrating vertex's depth is its distance to the opposing surface: the triangles its region
+  pierces plus the triangles of the other penetrating regions (for two overlapping spheres, the cap of one
+  that lies inside the other). On a mesh with boundary, a seed's depth is the distance of the nearer
+  endpoint of its crossing edge to the pierced triangle (how far the edge must move to stop crossing).
+* **Clearance.** For every non-adjacent pair within ``cap = clearance_cap * diag``:
+  ``c(s, t) = dist(s, t) * max(1, cap / dist_rest(s, t))`` for pairs sharing no vertex, and
+  ``c(s, t) = cap * angle(s, t) / angle_rest(s, t)`` for pairs sharing one vertex, where ``angle`` is the
+  angular gap between the two corners at the shared vertex. Far-apart parts count with their plain
+  distance; parts that are close already in the rest mesh count relative to their rest distance, so that
+  the rest mesh's own neighbourhoods sit at the cap, and every term goes to 0 exactly when that pair
+  starts to overlap.
+* **PD_i and PD.** Given a vertex partition into K parts (one part if none is given):
+  ``PD_i = max(depth of the penetrating vertices of part i, d(s, t) - tau of the counted pairs touching
+  part i)`` if that is > 0, otherwise ``PD_i = -min(cap, min c(s, t) over pairs touching part i)``.
+  ``PD = max_i PD_i``. So ``PD > 0`` iff the mesh self-collides; PD is the deepest penetration when it
+  does and minus the (capped) clearance when it does not; both sides go to 0 at the contact, and a part
+  that is not involved in a collision keeps its clearance. Units: length, like the vertices.
+
+See ``docs/labels.md`` for the reasoning, and why python-fcl's triangle-pair contact depth was not used for
+PD (measured: it jumps from 0 to a large value when a triangle enters another from its side).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from neuralcol.collision.kernels import (
+    drop_adjacent,
+    grid_pairs,
+    label_mesh,
+    near_table,
+    pair_depths,
+    triangle_aabbs,
+    verdict_kernel,
+)
+from neuralcol.geometry.topology import edge_topology, vertex_neighbors
+
+
+class Label(NamedTuple):
+    """Label of one mesh.
+
+    Attributes:
+        collides: the verdict.
+        n_pairs: number of counted intersecting triangle pairs.
+        pd: signed penetration depth (> 0 iff ``collides``).
+        pd_sub: (K,) float64 per-part PD_i (``pd == pd_sub.max()``).
+    """
+
+    collides: bool
+    n_pairs: int
+    pd: float
+    pd_sub: np.ndarray
+
+
+class Labels(NamedTuple):
+    """Labels of a batch of B meshes: collides (B,) bool, n_pairs (B,) int64, pd (B,) float64,
+    pd_sub (B, K) float64."""
+
+    collides: np.ndarray
+    n_pairs: np.ndarray
+    pd: np.ndarray
+    pd_sub: np.ndarray
+
+    @staticmethod
+    def stack(labels: list[Label]) -> Labels:
+        if not labels:
+            return Labels(np.zeros(0, bool), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 1)))
+        return Labels(np.array([lb.collides for lb in labels], dtype=bool),
+                      np.array([lb.n_pairs for lb in labels], dtype=np.int64),
+                      np.array([lb.pd for lb in labels], dtype=np.float64),
+                      np.stack([lb.pd_sub for lb in labels]).astype(np.float64))
+
+
+SUBSET_POSITIVE, SUBSET_NEGATIVE, SUBSET_BOUNDARY = 0, 1, 2
+SUBSET_NAMES = ("D_p", "D_n", "D_b")
+
+
+def split_subsets(pd: np.ndarray, eps: float) -> np.ndarray:
+    """Paper eq. 1: D_p (PD > eps) -> 0, D_n (PD < 0) -> 1, D_b (0 <= PD <= eps) -> 2.
+
+    Args:
+        pd: (B,) signed penetration depths.
+        eps: absolute threshold (the labeler's ``eps`` = ``boundary_eps * diag``).
+
+    Returns:
+        (B,) int8 subset codes.
+    """
+    pd = np.asarray(pd)
+    out = np.full(pd.shape, SUBSET_BOUNDARY, dtype=np.int8)
+    out[pd > eps] = SUBSET_POSITIVE
+    out[pd < 0] = SUBSET_NEGATIVE
+    return out
+
+
+class ExactLabeler:
+    """Exact self-collision labels for meshes of one topology (see the module docstring).
+
+    Args:
+        faces: (F, 3) int triangles.
+        rest_vertices: (V, 3) float rest mesh: sets ``ell``, ``diag`` and the rest distances of the
+            clearance; it should be free of self-intersections.
+        partition: (V,) int part of each vertex in [0, K) for PD_i; None means one part.
+        touch_tol: ``tau = touch_tol * ell``; overlaps up to tau count as touching.
+        clearance_cap: ``cap = clearance_cap * diag``; clearances are capped there.
+        boundary_eps: ``eps = boundary_eps * diag`` for the D_p / D_b split (paper eq. 1).
+        cell_factor: grid cell size of the broadphase in units of the mean triangle box size.
+    """
+
+    def __init__(self, faces, rest_vertices, partition=None, touch_tol: float = 1e-6,
+                 clearance_cap: float = 0.01, boundary_eps: float = 2e-3, cell_factor: float = 2.0):
+        self.faces = np.ascontiguousarray(np.asarray(faces, dtype=np.int64))
+        rest = np.ascontiguousarray(np.asarray(rest_vertices, dtype=np.float64))
+        if rest.ndim != 2 or rest.shape[1] != 3:
+            raise ValueError(f"rest_vertices have shape {rest.shape}, expected (V, 3)")
+        if touch_tol < 0 or clearance_cap <= 0 or boundary_eps < 0:
+            raise ValueError("touch_tol and boundary_eps must be >= 0 and clearance_cap > 0")
+        self.rest = rest
+        self.n_vertices = len(rest)
+        topo = edge_topology(self.faces)
+        self.edges = topo.edges
+        self.ell = float(np.linalg.norm(rest[self.edges[:, 0]] - rest[self.edges[:, 1]], axis=1).mean())
+        self.diag = float(np.linalg.norm(rest.max(0) - rest.min(0)))
+        self.tau = touch_tol * self.ell
+        self.cap = clearance_cap * self.diag
+        self.eps = boundary_eps * self.diag
+        self.closed = bool((topo.face_count == 2).all())
+        tri = rest[self.faces]
+        if self.closed:  # outward orientation: positive enclosed volume
+            vol = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0
+            self.orient = 1.0 if vol >= 0 else -1.0
+        else:
+            self.orient = 1.0
+        ext = (tri.max(1) - tri.min(1)).max(1)
+        self.cell = cell_factor * float(ext.mean())
+        # vertex adjacency in CSR form with edge ids (for the flood fill)
+        nbr = vertex_neighbors(self.edges, self.n_vertices)
+        counts = (nbr >= 0).sum(1)
+        self.adj_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self.adj_idx = nbr[nbr >= 0].astype(np.int64)
+        lo = np.minimum(np.repeat(np.arange(self.n_vertices), counts), self.adj_idx)
+        hi = np.maximum(np.repeat(np.arange(self.n_vertices), counts), self.adj_idx)
+        self.adj_eid = np.searchsorted(self.edges[:, 0] * self.n_vertices + self.edges[:, 1],
+                                       lo * self.n_vertices + hi).astype(np.int64)
+        self.set_partition(partition)
+        near_pairs = self.candidate_pairs(rest, inflate=0.5 * self.cap)
+        self._near_keys, self._near_rest = near_table(rest, self.faces, near_pairs, self.cap, self.ell)
+
+    # ------------------------------------------------------------------ configuration
+    def set_partition(self, partition) -> None:
+        """Set the vertex partition (V,) int in [0, K) used for PD_i (None: one part)."""
+        if partition is None:
+            part = np.zeros(self.n_vertices, dtype=np.int64)
+        else:
+            part = np.asarray(partition, dtype=np.int64).reshape(-1)
+            if part.shape != (self.n_vertices,):
+                raise ValueError(f"partition has shape {part.shape}, expected ({self.n_vertices},)")
+            if part.min() < 0:
+                raise ValueError("partition entries must be >= 0")
+        self.partition = part
+        self.n_parts = int(part.max()) + 1
+
+    def _check(self, vertices) -> np.ndarray:
+        v = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64))
+        if v.shape != (self.n_vertices, 3):
+            raise ValueError(f"vertices have shape {v.shape}, expected ({self.n_vertices}, 3)")
+        if not np.isfinite(v).all():
+            raise ValueError("vertices contain NaN or inf; cannot label")
+        return v
+
+    # ------------------------------------------------------------------ queries
+    def candidate_pairs(self, vertices, inflate: float = 0.0) -> np.ndarray:
+        """Non-adjacent triangle pairs whose boxes, grown by ``inflate``, overlap: (P, 2) int64."""
+        v = self._check(vertices)
+        lo, hi = triangle_aabbs(v, self.faces, inflate)
+        return drop_adjacent(self.faces, grid_pairs(lo, hi, max(self.cell, 2 * inflate)))
+
+    def verdict(self, vertices) -> bool:
+        """True iff the mesh self-collides (early exit at the first counted pair)."""
+        v = self._check(vertices)
+        lo, hi = triangle_aabbs(v, self.faces, 0.0)
+        return bool(verdict_kernel(v, self.faces, lo, hi, self.cell, self.ell, self.tau))
+
+    def intersecting_pairs(self, vertices) -> np.ndarray:
+        """All counted intersecting triangle pairs, (P, 2) int64 sorted."""
+        v = self._check(vertices)
+        pairs = self.candidate_pairs(v)
+        d = pair_depths(v, self.faces, pairs, self.ell)
+        return pairs[d > self.tau]
+
+    def label(self, vertices) -> Label:
+        """Verdict, number of counted pairs, PD and PD_i of one mesh (V, 3)."""
+        n_pairs, pd_sub, _ = self._label(vertices)
+        return Label(bool(n_pairs > 0), int(n_pairs), float(pd_sub.max()), pd_sub)
+
+    def vertex_depths(self, vertices) -> np.ndarray:
+        """Penetration depth of every vertex (V,) (0 for vertices that do not penetrate), e.g. to colour a mesh."""
+        return self._label(vertices)[2]
+
+    def _label(self, vertices):
+        v = self._check(vertices)
+        lo, hi = triangle_aabbs(v, self.faces, 0.5 * self.cap)
+        pairs = drop_adjacent(self.faces, grid_pairs(lo, hi, max(self.cell, self.cap)))
+        return label_mesh(v, self.faces, pairs, self.ell, self.tau, self.cap, self.partition, self.n_parts,
+                          self.adj_ptr, self.adj_idx, self.adj_eid, len(self.edges), self.closed, self.orient,
+                          self._near_keys, self._near_rest)
+
+    def label_batch(self, vertices) -> Labels:
+        """Labels of a batch (B, V, 3), in-process (see :class:`~neuralcol.collision.pool.LabelPool`)."""
+        v = np.asarray(vertices)
+        if v.ndim != 3:
+            raise ValueError(f"vertices have shape {v.shape}, expected (B, {self.n_vertices}, 3)")
+        return Labels.stack([self.label(x) for x in v])
+
+    def subsets(self, pd: np.ndarray) -> np.ndarray:
+        """D_p / D_n / D_b codes of PD values with this labeler's ``eps`` (see :func:`split_subsets`)."""
+        return split_subsets(pd, self.eps)
