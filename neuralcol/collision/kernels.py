@@ -459,8 +459,9 @@ def wedge_gap(p, a, b, c, d):
     s2 = _dot(u2, nv)
     t1 = _dot(v1, nu)
     t2 = _dot(v2, nu)
-    if s1 * s2 <= 0.0 and t1 * t2 <= 0.0:
-        x = _cross(nu, nv)
+    x = _cross(nu, nv)
+    coplanar = _dot(x, x) <= 1e-20 * _dot(nu, nu) * _dot(nv, nv)  # then the arc distances below decide
+    if not coplanar and s1 * s2 <= 0.0 and t1 * t2 <= 0.0:
         mu = _add(u1, u2)
         mv = _add(v1, v2)
         if (_dot(x, mu) >= 0.0 and _dot(x, mv) >= 0.0) or (_dot(x, mu) <= 0.0 and _dot(x, mv) <= 0.0):
@@ -597,10 +598,12 @@ def label_mesh(verts, faces, pairs, scale, tau, cap, part, n_parts, adj_ptr, adj
     clear = np.full(n_parts, np.inf)
     floor = np.zeros(n_parts)
     blocked = np.zeros(n_edges, dtype=np.bool_)
-    # seeds: (behind vertex, other endpoint, pierced triangle)
-    seed_cap = 64
-    seeds = np.empty((seed_cap, 3), dtype=np.int64)
-    n_seeds = 0
+    # crossing records: key = edge id + lambda / 2; ints = (edge, behind vertex, other end, pierced triangle,
+    # counted pair)
+    rec_cap = 64
+    rec_key = np.empty(rec_cap)
+    rec_int = np.empty((rec_cap, 5), dtype=np.int64)
+    n_rec = 0
     n_pairs = 0
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
@@ -633,7 +636,7 @@ def label_mesh(verts, faces, pairs, scale, tau, cap, part, n_parts, adj_ptr, adj
                 depth = -1.0
             else:
                 depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
-        if depth > 0.0:
+        if depth > tau:
             c = 0.0
         elif near:
             r = near_rest[idx]
@@ -642,23 +645,21 @@ def label_mesh(verts, faces, pairs, scale, tau, cap, part, n_parts, adj_ptr, adj
             elif shared == 1:
                 c = cap * _corner_angle(verts, faces, a, b) / r
             else:
-                c = cap * (-depth) / r
+                c = cap * max(-depth, 0.0) / r
         else:
-            c = triangle_distance(p0, p1, p2, q0, q1, q2)
+            c = 0.0 if depth > 0.0 else triangle_distance(p0, p1, p2, q0, q1, q2)
         for t in (a, b):
             for i in range(3):
                 pi = part[faces[t, i]]
                 if c < clear[pi]:
                     clear[pi] = c
-        if depth <= 0.0:
-            continue
-        counted = depth > tau
-        if counted:
-            n_pairs += 1
-            for t in (a, b):
-                for i in range(3):
-                    pi = part[faces[t, i]]
-                    floor[pi] = max(floor[pi], depth - tau)
+        if depth <= tau:
+            continue  # apart, or touching within tau: not counted, no crossing edges
+        n_pairs += 1
+        for t in (a, b):
+            for i in range(3):
+                pi = part[faces[t, i]]
+                floor[pi] = max(floor[pi], depth - tau)
         # ---- crossing edges of s through t and of t through s
         for side in range(2):
             s = a if side == 0 else b
@@ -673,25 +674,72 @@ def label_mesh(verts, faces, pairs, scale, tau, cap, part, n_parts, adj_ptr, adj
                     continue
                 if w == faces[t, 0] or w == faces[t, 1] or w == faces[t, 2]:
                     continue
-                sd = segment_crosses_triangle(_pt(verts, u), _pt(verts, w), ta, tb, tc)
+                pu = _pt(verts, u)
+                pw = _pt(verts, w)
+                sd = segment_crosses_triangle(pu, pw, ta, tb, tc)
                 if sd == 0.0:
                     continue
                 eid = _edge_id(adj_ptr, adj_idx, adj_eid, u, w)
-                if eid >= 0:
-                    blocked[eid] = True
-                if not counted:
+                if eid < 0:
                     continue
+                if n_rec == rec_cap:
+                    rec_cap *= 2
+                    g_key = np.empty(rec_cap)
+                    g_int = np.empty((rec_cap, 5), dtype=np.int64)
+                    g_key[:n_rec] = rec_key[:n_rec]
+                    g_int[:n_rec] = rec_int[:n_rec]
+                    rec_key = g_key
+                    rec_int = g_int
+                lo_v = min(u, w)  # crossing parameter measured from the lower vertex id, so both
+                hi_v = max(u, w)  # triangles of the edge give the same value
+                dl = _orient(ta, tb, tc, _pt(verts, lo_v))
+                dh = _orient(ta, tb, tc, _pt(verts, hi_v))
+                lam = dl / (dl - dh)
                 behind = u if sd * orient < 0.0 else w
-                other = w if behind == u else u
-                if n_seeds == seed_cap:
-                    seed_cap *= 2
-                    grown = np.empty((seed_cap, 3), dtype=np.int64)
-                    grown[:n_seeds] = seeds[:n_seeds]
-                    seeds = grown
-                seeds[n_seeds, 0] = behind
-                seeds[n_seeds, 1] = other
-                seeds[n_seeds, 2] = t
-                n_seeds += 1
+                rec_key[n_rec] = eid + 0.5 * min(max(lam, 0.0), 1.0)
+                rec_int[n_rec, 0] = eid
+                rec_int[n_rec, 1] = behind
+                rec_int[n_rec, 2] = w if behind == u else u
+                rec_int[n_rec, 3] = t
+                rec_int[n_rec, 4] = 1
+                n_rec += 1
+    # An edge separates inside from outside only if it crosses the surface an odd number of times (an edge
+    # through a corner enters and leaves). Crossings at the same point (through a shared edge or vertex of the
+    # other surface) count once if they agree on the side, and not at all if they disagree (a graze).
+    order = np.argsort(rec_key[:n_rec])
+    seeds = np.empty((max(n_rec, 1), 3), dtype=np.int64)
+    n_seeds = 0
+    keep = np.zeros(n_rec, dtype=np.bool_)
+    k = 0
+    while k < n_rec:
+        e = rec_int[order[k], 0]
+        end = k
+        while end < n_rec and rec_int[order[end], 0] == e:
+            end += 1
+        n_cross = 0
+        c0 = k
+        while c0 < end:  # clusters of equal crossing parameter
+            c1 = c0 + 1
+            agree = True
+            while c1 < end and rec_key[order[c1]] - rec_key[order[c0]] <= 1e-12:
+                if rec_int[order[c1], 1] != rec_int[order[c0], 1]:
+                    agree = False
+                c1 += 1
+            if agree:
+                n_cross += 1
+                for j in range(c0, c1):
+                    keep[order[j]] = True
+            c0 = c1
+        if n_cross % 2 == 1:
+            blocked[e] = True
+            for j in range(k, end):
+                r = order[j]
+                if keep[r] and rec_int[r, 4] == 1:
+                    seeds[n_seeds, 0] = rec_int[r, 1]
+                    seeds[n_seeds, 1] = rec_int[r, 2]
+                    seeds[n_seeds, 2] = rec_int[r, 3]
+                    n_seeds += 1
+        k = end
     pos = floor.copy()
     depth_v = np.zeros(n_vert)
     if n_seeds > 0:
@@ -760,7 +808,7 @@ def _penetration_depths(verts, faces, seeds, adj_ptr, adj_idx, adj_eid, blocked,
             depth[v] = max(depth[v], _seed_depth(verts, faces, seeds, k))
     if n_regions == 0:
         return depth
-    # opposing triangles of each valid region: the triangles it pierces + triangles of the other regions
+    # opposing triangles of each valid region: the triangles it pierces + triangles of all other regions
     pierced = np.zeros((n_regions, faces.shape[0]), dtype=np.bool_)
     for k in range(n_seeds):
         pierced[region[seeds[k, 0]], seeds[k, 2]] = True
@@ -776,7 +824,7 @@ def _penetration_depths(verts, faces, seeds, adj_ptr, adj_idx, adj_eid, blocked,
                 rf = region[faces[f, i]]
                 if rf == r:
                     own = True
-                elif rf >= 0 and valid[rf]:
+                elif rf >= 0:
                     other = True
             if not own and (pierced[r, f] or other):
                 opp[n_opp] = f

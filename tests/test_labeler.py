@@ -1,0 +1,234 @@
+"""Exact labeler: adjacency rules, agreement with MeshLab, analytic penetration depth and clearance."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from neuralcol.collision.labeler import (
+    SUBSET_BOUNDARY,
+    SUBSET_NEGATIVE,
+    SUBSET_POSITIVE,
+    ExactLabeler,
+    split_subsets,
+)
+
+
+@pytest.fixture(scope="module")
+def scape_np(scape):
+    return scape.vertices.numpy().astype(np.float64), scape.faces.numpy()
+
+
+@pytest.fixture(scope="module")
+def scape_labeler(scape_np):
+    verts, faces = scape_np
+    return ExactLabeler(faces, verts[0])
+
+
+def meshlab_collides(verts: np.ndarray, faces: np.ndarray) -> bool:
+    """Independent reference: MeshLab's per-face self-intersection filter."""
+    pymeshlab = pytest.importorskip("pymeshlab")
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=verts, face_matrix=faces))
+    ms.compute_selection_by_self_intersections_per_face()
+    return ms.current_mesh().selected_face_number() > 0
+
+
+# ------------------------------------------------------------------------------------------ adjacency
+def test_edge_neighbours_folded_flat_never_count():
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0.3, 1, 0], [0.4, 0.8, 0.0]], float)  # d lies on triangle abc
+    faces = np.array([[0, 1, 2], [1, 0, 3]])
+    lab = ExactLabeler(faces, np.array([[0, 0, 0], [1, 0, 0], [0.3, 1, 0], [0.4, -0.8, 0.0]], float))
+    assert not lab.verdict(verts) and lab.label(verts).n_pairs == 0
+    verts[3, 2] = 0.3  # folded past flat: still an edge neighbour
+    assert not lab.verdict(verts)
+
+
+def _one_vertex_fan(tip):
+    """Triangles (0, 1, 2) and (0, 3, 4) share vertex 0 only; the second's far edge is at height tip."""
+    rest = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, 0.2, 0.0], [-0.8, -0.9, 0.0]], float)
+    faces = np.array([[0, 1, 2], [0, 3, 4]])
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.5, 0.2, tip], [0.4, 0.1, -0.3]], float)
+    return ExactLabeler(faces, rest), verts
+
+
+def test_fold_through_one_vertex_neighbour_counts():
+    lab, verts = _one_vertex_fan(tip=0.3)  # edge (3, 4) pierces triangle (0, 1, 2)
+    label = lab.label(verts)
+    assert lab.verdict(verts) and label.collides and label.n_pairs == 1 and label.pd > 0
+
+
+def test_one_vertex_neighbours_touching_at_the_vertex_do_not_count():
+    lab, _ = _one_vertex_fan(tip=0.3)
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, 0.2, 0.5], [-0.8, -0.9, 0.4]], float)
+    assert not lab.verdict(verts)
+    assert lab.label(verts).pd < 0
+
+
+def test_subdivided_coplanar_triangles_never_count(scape_np):
+    verts, faces = scape_np
+    v1, f1 = trimesh.remesh.subdivide(verts[0], faces)
+    v2, f2 = trimesh.remesh.subdivide(v1, f1)
+    for v, f in ((v1, f1), (v2, f2)):  # exact midpoints: many exactly coplanar one-vertex neighbours
+        lab = ExactLabeler(f, v)
+        assert len(lab.intersecting_pairs(v)) == 0
+        assert not lab.label(v).collides
+    flat = trimesh.creation.box(extents=(1, 1, 1))
+    fv, ff = trimesh.remesh.subdivide_to_size(flat.vertices, flat.faces, max_edge=0.1)
+    assert not ExactLabeler(ff, fv).verdict(fv)
+
+
+# ------------------------------------------------------------------------------------------ MeshLab
+def test_scape_verdicts_match_meshlab(scape_np, scape_labeler):
+    verts, faces = scape_np
+    ours = [scape_labeler.verdict(v) for v in verts]
+    ref = [meshlab_collides(v, faces) for v in verts]
+    assert ours == ref, [i + 1 for i in range(len(ours)) if ours[i] != ref[i]]
+    assert sum(ref) == 2  # files 8 and 71
+    for i in np.nonzero(ref)[0]:  # the same faces as MeshLab's selection
+        import pymeshlab
+
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=verts[i], face_matrix=faces))
+        ms.compute_selection_by_self_intersections_per_face()
+        sel = set(np.nonzero(ms.current_mesh().face_selection_array())[0].tolist())
+        assert set(np.unique(scape_labeler.intersecting_pairs(verts[i])).tolist()) == sel
+
+
+def test_variants_match_meshlab_including_near_boundary(scape_np, scape_labeler):
+    """>= 200 interpolations / extrapolations of SCAPE poses, plus pairs of samples straddling the boundary."""
+    verts, faces = scape_np
+    rng = np.random.default_rng(0)
+    free = [i for i in range(len(verts)) if i not in (7, 70)]
+    variants = []
+    for _ in range(200):
+        i, j = rng.choice(free, 2, replace=False)
+        t = rng.uniform(-0.8, 1.8)
+        variants.append(verts[i] + t * (verts[j] - verts[i]))
+    ours = np.array([scape_labeler.verdict(v) for v in variants])
+    assert 0.1 < ours.mean() < 0.9, f"variants should mix both classes, got {ours.mean():.2f} colliding"
+    # boundary: bisect along free -> colliding paths, then step a little to each side
+    near = []
+    for k in np.nonzero(ours)[0][:12]:
+        i, j = k, k  # placeholder to keep the loop readable
+        lo, hi = np.zeros_like(verts[0]), variants[k]
+        lo = verts[free[k % len(free)]]
+        if scape_labeler.verdict(lo):
+            continue
+        a, b = 0.0, 1.0
+        for _ in range(30):
+            m = 0.5 * (a + b)
+            if scape_labeler.verdict(lo + m * (hi - lo)):
+                b = m
+            else:
+                a = m
+        step = 2e-3 * (b if b > 0 else 1.0)
+        near += [lo + (a - step) * (hi - lo), lo + (b + step) * (hi - lo)]
+        del i, j
+    assert len(near) >= 16
+    near_ours = [scape_labeler.verdict(v) for v in near]
+    assert near_ours[0::2] == [False] * (len(near) // 2) and near_ours[1::2] == [True] * (len(near) // 2)
+    all_v = variants + near
+    ref = np.array([meshlab_collides(v, faces) for v in all_v])
+    ours_all = np.concatenate([ours, near_ours])
+    bad = np.nonzero(ref != ours_all)[0]
+    assert len(bad) == 0, f"{len(bad)} of {len(all_v)} verdicts differ from MeshLab: {bad[:10]}"
+
+
+def test_label_consistency_on_variants(scape_np, scape_labeler):
+    verts, faces = scape_np
+    rng = np.random.default_rng(1)
+    for _ in range(40):
+        i, j = rng.choice(69, 2, replace=False)
+        v = verts[i] + rng.uniform(-0.8, 1.8) * (verts[j] - verts[i])
+        lb = scape_labeler.label(v)
+        assert lb.collides == scape_labeler.verdict(v) == (lb.n_pairs > 0) == (lb.pd > 0)
+        assert lb.pd == lb.pd_sub.max()
+        assert -scape_labeler.cap <= lb.pd
+
+
+# ------------------------------------------------------------------------------------------ analytic
+def _two_spheres(subdiv=4, rotvec=(0.3, 0.2, 0.1)):
+    s = trimesh.creation.icosphere(subdivisions=subdiv, radius=1.0)
+    v = np.asarray(s.vertices)
+    f = np.asarray(s.faces)
+    v2 = Rotation.from_rotvec(rotvec).apply(v)  # avoid vertices exactly on the other sphere
+    faces = np.concatenate([f, f + len(v)])
+    part = np.repeat([0, 1], len(v))
+    return (lambda d: np.concatenate([v, v2 + [d, 0.0, 0.0]])), faces, part
+
+
+def test_spheres_pd_matches_analytic_depth_and_clearance():
+    at, faces, part = _two_spheres(subdiv=4)  # 2562 vertices each; faces sit < 1e-3 inside the sphere
+    rest = at(6.0)
+    diag = np.linalg.norm(rest.max(0) - rest.min(0))
+    lab = ExactLabeler(faces, rest, partition=part, clearance_cap=0.2 / diag)  # cap = 0.2
+    ds = np.linspace(2.15, 1.05, 23)
+    pds = []
+    for d in ds:
+        lb = lab.label(at(d))
+        analytic = 2.0 - d  # translational penetration depth (> 0) or minus the gap (< 0)
+        pds.append(lb.pd)
+        assert lb.collides == (analytic > 0)
+        assert lb.pd == pytest.approx(analytic, rel=0.05, abs=2e-3), f"D={d:.3f}"
+        np.testing.assert_allclose(lb.pd_sub, [lb.pd, lb.pd], rtol=0.05, atol=2e-3)
+    steps = np.diff(pds)
+    assert (steps > 0).all(), "PD grows monotonically as the spheres move into each other"
+    assert np.abs(steps).max() < 3 * (ds[0] - ds[1]), "no jumps: PD changes like the distance"
+
+
+def test_boxes_pd_matches_analytic():
+    box = trimesh.creation.box(extents=(1, 1, 1))
+    v, f = trimesh.remesh.subdivide_to_size(box.vertices + 0.5, box.faces, max_edge=0.25)
+    faces = np.concatenate([f, f + len(v)])
+
+    # generic position: a tiny rotation keeps the two grids from lining up exactly (exactly aligned grids
+    # make edges graze edges; see docs/labels.md, "degenerate contacts")
+    v2 = Rotation.from_rotvec([2e-3, -1e-3, 1.5e-3]).apply(v - 0.5) + 0.5
+
+    def at(s):
+        return np.concatenate([v, v2 + [s, 0.3, 0.2]])
+
+    lab = ExactLabeler(faces, at(3.0), clearance_cap=0.1)
+    for s in (1.3, 1.1, 1.02, 0.98, 0.95, 0.9, 0.85):
+        analytic = 1.0 - s  # overlap along x (< the y, z overlaps 0.7, 0.8)
+        lb = lab.label(at(s))
+        assert lb.collides == (analytic > 0)
+        assert lb.pd == pytest.approx(analytic, rel=0.05, abs=1e-6), f"s={s}"
+
+
+def test_partition_uninvolved_part_keeps_clearance():
+    at, faces, part = _two_spheres(subdiv=3)
+    third = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    tv = np.asarray(third.vertices)
+    faces3 = np.concatenate([faces, np.asarray(third.faces) + 2 * len(tv)])
+    part3 = np.concatenate([part, np.full(len(tv), 2)])
+
+    def at3(d, y=2.3):
+        return np.concatenate([at(d), tv + [0.0, y, 0.0]])  # third sphere 0.3 above the first
+
+    rest = at3(6.0, y=6.0)  # all apart in the rest mesh
+    lab = ExactLabeler(faces3, rest, partition=part3, clearance_cap=0.5 / np.linalg.norm(rest.max(0) - rest.min(0)))
+    lb = lab.label(at3(1.8))
+    assert lb.collides and lb.pd == pytest.approx(0.2, rel=0.05)
+    assert lb.pd_sub[2] == pytest.approx(-0.3, rel=0.05), "part 2 is free: minus its clearance"
+    assert lb.pd == lb.pd_sub.max()
+
+
+def test_split_subsets():
+    pd = np.array([-0.3, -1e-9, 0.0, 0.005, 0.01, 0.0100001, 2.0])
+    codes = split_subsets(pd, eps=0.01)
+    assert codes.tolist() == [SUBSET_NEGATIVE, SUBSET_NEGATIVE, SUBSET_BOUNDARY, SUBSET_BOUNDARY,
+                              SUBSET_BOUNDARY, SUBSET_POSITIVE, SUBSET_POSITIVE]
+
+
+def test_bad_input():
+    lab, verts = _one_vertex_fan(0.3)
+    with pytest.raises(ValueError, match=r"expected \(5, 3\)"):
+        lab.label(verts[:4])
+    bad = verts.copy()
+    bad[1, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        lab.label(bad)
