@@ -232,3 +232,25 @@ def test_bad_input():
     bad[1, 0] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         lab.label(bad)
+
+
+def test_clearance_of_separate_parts_matches_fcl_distance():
+    """Far-pair clearance = exact polyhedral distance; python-fcl's BVH distance is the reference."""
+    fcl = pytest.importorskip("fcl")
+    at, faces, _ = _two_spheres(subdiv=3)
+    rest = at(6.0)
+    lab = ExactLabeler(faces, rest, clearance_cap=0.5 / np.linalg.norm(rest.max(0) - rest.min(0)))
+    n_v, n_f = len(rest) // 2, len(faces) // 2
+
+    def bvh(v, f):
+        m = fcl.BVHModel()
+        m.beginModel(len(v), len(f))
+        m.addSubModel(v, f)
+        m.endModel()
+        return fcl.CollisionObject(m)
+
+    for d in (2.03, 2.1, 2.3, 2.45):
+        v = at(d)
+        res = fcl.DistanceResult()
+        fcl.distance(bvh(v[:n_v], faces[:n_f]), bvh(v[n_v:], faces[n_f:] - n_v), fcl.DistanceRequest(), res)
+        assert lab.label(v).pd == pytest.approx(-res.min_distance, rel=1e-6, abs=1e-9), f"D={d}"

@@ -22,13 +22,16 @@ diagonal of the rest mesh the labeler is built with):
   pierces plus the triangles of the other penetrating regions (for two overlapping spheres, the cap of one
   that lies inside the other). On a mesh with boundary, a seed's depth is the distance of the nearer
   endpoint of its crossing edge to the pierced triangle (how far the edge must move to stop crossing).
-* **Clearance.** For every non-adjacent pair within ``cap = clearance_cap * diag``:
-  ``c(s, t) = dist(s, t) * max(1, cap / dist_rest(s, t))`` for pairs sharing no vertex, and
-  ``c(s, t) = cap * angle(s, t) / angle_rest(s, t)`` for pairs sharing one vertex, where ``angle`` is the
-  angular gap between the two corners at the shared vertex. Far-apart parts count with their plain
-  distance; parts that are close already in the rest mesh count relative to their rest distance, so that
-  the rest mesh's own neighbourhoods sit at the cap, and every term goes to 0 exactly when that pair
-  starts to overlap.
+* **Clearance.** Every non-adjacent pair whose boxes are within ``cap = clearance_cap * diag`` contributes
+  a term ``c(s, t)`` that is 0 exactly when the pair overlaps (beyond ``tau``) and grows as it separates:
+  pairs that are farther apart than ``cap`` in the rest mesh ("far") contribute their Euclidean distance;
+  pairs within ``cap`` in the rest mesh ("near", including all pairs sharing one vertex) contribute
+  ``cap * m / m_rest``, their separation relative to the rest mesh, where ``m`` is the SAT separation of
+  the two triangles (the largest gap between their projections on the 17 axes above, a lower bound of
+  the distance) or, for pairs sharing one vertex, the chordal gap between the two corners at that vertex.
+  So the rest mesh's own neighbourhoods sit at the cap and only count once they come closer than at rest,
+  while separate parts (two fingers, an arm and the torso) count with their real distance. Which formula
+  a pair uses is fixed by the rest mesh, so ``c`` is continuous in the vertices.
 * **PD_i and PD.** Given a vertex partition into K parts (one part if none is given):
   ``PD_i = max(depth of the penetrating vertices of part i, d(s, t) - tau of the counted pairs touching
   part i)`` if that is > 0, otherwise ``PD_i = -min(cap, min c(s, t) over pairs touching part i)``.
