@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import torch
 
 HERE = Path(__file__).resolve().parent
@@ -71,7 +72,123 @@ def bench_acap(ctx: dict) -> dict:
     }
 
 
-BENCHES: dict[str, Callable[[dict], dict]] = {"acap": bench_acap}
+def _jittered_subdivision(verts, faces, levels: int, rng):
+    """SCAPE meshes subdivided ``levels`` times (midpoints), vertices jittered by 1e-6 of the bbox diagonal
+    (exactly coplanar sub-triangles trip MeshLab's filter)."""
+    import trimesh
+
+    out = []
+    f = faces
+    for v in verts:
+        vv, ff = v, faces
+        for _ in range(levels):
+            vv, ff = trimesh.remesh.subdivide(vv, ff)
+        diag = float(np.linalg.norm(vv.max(0) - vv.min(0)))
+        out.append(vv + rng.normal(scale=1e-6 * diag / np.sqrt(3), size=vv.shape))
+        f = ff
+    return np.stack(out), np.asarray(f)
+
+
+def _meshlab_times(verts, faces, reps):
+    """Per-mesh seconds of MeshLab's self-intersection filter (mesh upload excluded)."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    per_rep = []
+    for _ in range(reps):
+        total = 0.0
+        for v in verts:
+            ms.clear()
+            ms.add_mesh(pymeshlab.Mesh(vertex_matrix=v, face_matrix=faces))
+            t0 = time.perf_counter()
+            ms.compute_selection_by_self_intersections_per_face()
+            total += time.perf_counter() - t0
+        per_rep.append(total / len(verts))
+    return per_rep
+
+
+def _per_mesh_times(fn, verts, reps):
+    per_rep = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        for v in verts:
+            fn(v)
+        per_rep.append((time.perf_counter() - t0) / len(verts))
+    return per_rep
+
+
+def bench_labeler(ctx: dict) -> dict:
+    """Exact verdict and full label per SCAPE mesh, side by side with MeshLab, and scaling with mesh size."""
+    from neuralcol.collision.labeler import ExactLabeler
+
+    ds = ctx["scape"]
+    verts = ds.vertices.numpy().astype(np.float64)
+    faces = ds.faces.numpy()
+    reps = ctx["reps"]
+    lab = ExactLabeler(faces, verts[0])
+    lab.label(verts[1])  # compile / load the numba cache outside the timing
+    lab.verdict(verts[1])
+    out = {
+        "verdict_ms": summarize(_per_mesh_times(lab.verdict, verts, reps), 1e3),
+        "meshlab_ms": summarize(_meshlab_times(verts, faces, reps), 1e3),
+        "full_label_ms": summarize(_per_mesh_times(lab.label, verts, reps), 1e3),
+    }
+    out["verdict_vs_meshlab"] = _ratio(out["verdict_ms"], out["meshlab_ms"])
+    rng = np.random.default_rng(0)
+    scaling = {"triangles": [len(faces)], "verdict_ms": [out["verdict_ms"]["median"]],
+               "meshlab_ms": [out["meshlab_ms"]["median"]], "full_label_ms": [out["full_label_ms"]["median"]]}
+    n_meshes = {1: 8 if ctx["quick"] else 16, 2: 3 if ctx["quick"] else 6}
+    free = [i for i in range(len(verts)) if not lab.verdict(verts[i])]
+    for level in (1, 2):
+        sv, sf = _jittered_subdivision(verts[free[: n_meshes[level]]], faces, level, rng)
+        slab = ExactLabeler(sf, sv[0])
+        flagged = sum(slab.verdict(v) for v in sv)
+        if flagged:
+            raise RuntimeError(f"{flagged} collision-free SCAPE meshes flagged after {level} subdivision(s)")
+        r = max(2, reps // 2)
+        scaling["triangles"].append(len(sf))
+        scaling["verdict_ms"].append(summarize(_per_mesh_times(slab.verdict, sv, r), 1e3)["median"])
+        scaling["meshlab_ms"].append(summarize(_meshlab_times(sv, sf, r), 1e3)["median"])
+        scaling["full_label_ms"].append(summarize(_per_mesh_times(slab.label, sv, r), 1e3)["median"])
+    out["scaling"] = scaling
+    return out
+
+
+def bench_pool(ctx: dict) -> dict:
+    """Labels per second of LabelPool with 1 and 2 workers on the same 142 SCAPE meshes, interleaved."""
+    from neuralcol.collision.labeler import ExactLabeler
+    from neuralcol.collision.pool import LabelPool
+
+    ds = ctx["scape"]
+    verts = ds.vertices.numpy().astype(np.float64)
+    batch = np.concatenate([verts, verts])
+    lab = ExactLabeler(ds.faces.numpy(), verts[0])
+    reps = 3 if ctx["quick"] else 5
+    with LabelPool(lab, workers=1, chunk_size=8) as one, LabelPool(lab, workers=2, chunk_size=8) as two:
+        one.label(batch[:4])
+        two.label(batch[:16])  # start the worker processes outside the timing
+        t1, t2 = [], []
+        for _ in range(reps):  # interleaved, so both see the same machine load
+            t0 = time.perf_counter()
+            one.label(batch)
+            t1.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            two.label(batch)
+            t2.append(time.perf_counter() - t0)
+    n = len(batch)
+    r1 = summarize([n / t for t in t1])
+    r2 = summarize([n / t for t in t2])
+    return {"pool_labels_per_s_1": r1, "pool_labels_per_s_2": r2,
+            "pool_speedup": summarize([a / b for a, b in zip(t1, t2)])}
+
+
+def _ratio(a: dict, b: dict) -> dict:
+    """Ratio of two medians measured in the same run (min/max: the ratio of the extremes)."""
+    return {"median": a["median"] / b["median"], "min": a["min"] / b["max"], "max": a["max"] / b["min"],
+            "reps": min(a["reps"], b["reps"])}
+
+
+BENCHES: dict[str, Callable[[dict], dict]] = {"acap": bench_acap, "labeler": bench_labeler, "pool": bench_pool}
 
 
 def write_markdown(results: dict, path: Path) -> None:
@@ -79,13 +196,22 @@ def write_markdown(results: dict, path: Path) -> None:
         "# Benchmark results",
         "",
         f"Date {results['date']}, {results['cores']} cores, {results['machine']}, torch {results['torch']}. "
-        f"Command: `{results['command']}`. Each figure: median (min–max) over the repetitions.",
+        f"Command: `{results['command']}`. Each figure: median, min and max over the repetitions; ratios "
+        "come from numbers measured in the same run. Sections (date, seconds): "
+        + ", ".join(f"{k} ({v['date']}, {v['seconds']})" for k, v in results.get("sections", {}).items()) + ".",
         "",
         "| key | median | min | max | reps |",
         "| --- | ---: | ---: | ---: | ---: |",
     ]
     for key, d in results["details"].items():
-        lines.append(f"| `{key}` | {d['median']:.4g} | {d['min']:.4g} | {d['max']:.4g} | {d['reps']} |")
+        if "median" in d:
+            lines.append(f"| `{key}` | {d['median']:.4g} | {d['min']:.4g} | {d['max']:.4g} | {d['reps']} |")
+    for key, d in results["details"].items():
+        if "median" not in d:  # tables such as the scaling series
+            cols = list(d)
+            lines += ["", f"`{key}`:", "", "| " + " | ".join(cols) + " |", "|" + " ---: |" * len(cols)]
+            for row in zip(*(d[c] for c in cols)):
+                lines.append("| " + " | ".join(f"{x:.4g}" for x in row) + " |")
     path.write_text("\n".join(lines) + "\n")
 
 
@@ -102,19 +228,28 @@ def main(argv: list[str] | None = None) -> int:
     from neuralcol import load_mesh_dataset
 
     torch.set_num_threads(os.cpu_count() or 1)
-    ctx = {"scape": load_mesh_dataset(SCAPE_DIR), "reps": 3 if args.quick else 7}
+    ctx = {"scape": load_mesh_dataset(SCAPE_DIR), "reps": 3 if args.quick else 7, "quick": args.quick}
     details: dict = {}
+    sections: dict = {}
+    previous = args.out / "results.json"
+    if args.only and previous.is_file():  # partial run: keep the other sections' last results
+        old = json.loads(previous.read_text())
+        details.update(old.get("details", {}))
+        sections.update(old.get("sections", {}))
     for name in args.only or list(BENCHES):
         t0 = time.perf_counter()
         details.update(BENCHES[name](ctx))
+        sections[name] = {"date": dt.datetime.now().isoformat(timespec="seconds"),
+                          "seconds": round(time.perf_counter() - t0, 1), "quick": args.quick}
         print(f"[bench] {name}: {time.perf_counter() - t0:.1f} s", flush=True)
-    results = {key: d["median"] for key, d in details.items()}
+    results = {key: (d["median"] if "median" in d else d) for key, d in details.items()}
     results.update({
         "cores": os.cpu_count(),
         "date": dt.datetime.now().isoformat(timespec="seconds"),
         "machine": f"{platform.machine()} {platform.processor() or platform.system()}",
         "torch": torch.__version__,
         "command": "python -m bench.run" + (" --quick" if args.quick else ""),
+        "sections": sections,
         "details": details,
     })
     args.out.mkdir(parents=True, exist_ok=True)

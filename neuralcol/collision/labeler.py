@@ -87,9 +87,10 @@ class Labels(NamedTuple):
     pd_sub: np.ndarray
 
     @staticmethod
-    def stack(labels: list[Label]) -> Labels:
+    def stack(labels: list[Label], n_parts: int = 1) -> Labels:
+        """Stack single labels; ``n_parts`` gives pd_sub's width when ``labels`` is empty."""
         if not labels:
-            return Labels(np.zeros(0, bool), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 1)))
+            return Labels(np.zeros(0, bool), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, n_parts)))
         return Labels(np.array([lb.collides for lb in labels], dtype=bool),
                       np.array([lb.n_pairs for lb in labels], dtype=np.int64),
                       np.array([lb.pd for lb in labels], dtype=np.float64),
@@ -234,7 +235,7 @@ class ExactLabeler:
         v = np.asarray(vertices)
         if v.ndim != 3:
             raise ValueError(f"vertices have shape {v.shape}, expected (B, {self.n_vertices}, 3)")
-        return Labels.stack([self.label(x) for x in v])
+        return Labels.stack([self.label(x) for x in v], self.n_parts)
 
     def subsets(self, pd: np.ndarray) -> np.ndarray:
         """D_p / D_n / D_b codes of PD values with this labeler's ``eps`` (see :func:`split_subsets`)."""
