@@ -2,7 +2,9 @@
 
 Runs the pipeline stages that exist so far on the configured data set (default: the procedural hand):
 load and validate the meshes, compute ACAP features, check the ACAP round trip, label the meshes exactly
-(self-intersection and PD), export example meshes, and write ``metrics.json`` into the Hydra run directory.
+(self-intersection and PD), train (or load from the cache) the bilevel autoencoder, picture its
+sub-domains, label decoded samples from U(Z), export example meshes, and write ``metrics.json`` into the
+Hydra run directory.
 """
 
 from __future__ import annotations
@@ -21,7 +23,9 @@ from omegaconf import DictConfig, OmegaConf
 from neuralcol.collision.pool import LabelPool
 from neuralcol.data.features import dataset_features
 from neuralcol.geometry.mesh_io import write_meshes
+from neuralcol.metrics.plots import partition_colors, render_mesh_png
 from neuralcol.metrics.reconstruction import relative_vertex_error
+from neuralcol.stages.autoencoder import train_or_load_latent_space
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.seeding import seed_everything
 
@@ -51,6 +55,31 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     with LabelPool(labeler, **OmegaConf.to_container(cfg.labeling.pool), desc="labeling data set") as pool:
         labels = pool.label(ds.vertices.numpy().astype("float64"))
     t_label = time.perf_counter() - t0
+    # bilevel autoencoder (trained, or loaded from the cache) and its latent space
+    from lightning.pytorch.loggers import TensorBoardLogger
+
+    logger = TensorBoardLogger(str(run_dir), name="tensorboard", version="")
+    t0 = time.perf_counter()
+    space, ae_report, ae_cached = train_or_load_latent_space(
+        ds, feats, cfg.autoencoder, cfg.dataset.latent, cfg.seed, Path(cfg.paths.cache_dir), logger)
+    t_ae = time.perf_counter() - t0
+    part = space.partition.numpy()
+    render_mesh_png(run_dir / "subdomains.png", rest, faces, partition_colors(part),
+                    title=f"{cfg.dataset.name}: {space.n_parts} sub-domains")
+    colors = (partition_colors(part)[:, :3] * 255).astype("uint8")
+    logger.experiment.add_mesh("subdomains", vertices=torch.as_tensor(rest[None]).float(),
+                               colors=torch.as_tensor(colors[None]), faces=torch.as_tensor(faces[None]))
+    # decoded samples from U(Z), labeled exactly (both classes are needed by the detector)
+    gen = torch.Generator().manual_seed(int(cfg.seed))
+    z = space.sample(int(cfg.latent_eval.n_samples), gen)
+    with torch.no_grad():
+        samples = torch.cat([space.decode(c) for c in z.split(256)]).numpy().astype("float64")
+    finite = bool(np.isfinite(samples).all())
+    sample_labeler = instantiate(cfg.labeling.labeler)(faces, rest, partition=part)
+    with LabelPool(sample_labeler, **OmegaConf.to_container(cfg.labeling.pool), desc="labeling U(Z)") as pool:
+        uz = pool.label(samples)
+    logger.experiment.add_scalar("latent/uniform_collision_fraction", float(uz.collides.mean()))
+    logger.finalize("success")
     k = min(int(cfg.n_example_meshes), len(ds))
     if k > 0:
         write_meshes(run_dir / "examples" / "input", ds.vertices[:k], ds.faces, ds.names[:k])
@@ -64,6 +93,11 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "dataset_labels": {"n_colliding": int(labels.collides.sum()), "colliding": [
             ds.names[i] for i in np.nonzero(labels.collides)[0]], "pd_min": float(labels.pd.min()),
             "pd_max": float(labels.pd.max()), "seconds": t_label},
+        "autoencoder": {**{k_: v for k_, v in ae_report.items() if k_ not in ("train_index", "val_index")},
+                        "from_cache": ae_cached, "stage_seconds": t_ae},
+        "latent": {"dim": space.dim, "n_parts": space.n_parts, "n_samples": len(z), "finite": finite,
+                   "uniform_collision_fraction": float(uz.collides.mean()),
+                   "uniform_pd_quantiles": np.quantile(uz.pd, [0.05, 0.5, 0.95]).tolist()},
     }
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
@@ -78,7 +112,13 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
     lb = metrics["dataset_labels"]
     print(f"exact labels: {lb['n_colliding']} of {d['n_meshes']} meshes self-collide {lb['colliding'][:8]}; "
           f"PD in [{lb['pd_min']:.3g}, {lb['pd_max']:.3g}] ({lb['seconds']:.1f} s)")
-    print(f"results: {run_dir}")
+    ae, la = metrics["autoencoder"], metrics["latent"]
+    val = ae["val_mean_vertex_error"]
+    print(f"autoencoder{' (cached)' if ae['from_cache'] else ''}: |Z_all| = {la['dim']}, {la['n_parts']} sub-domains "
+          f"(pieces {ae['pieces']}); mean vertex error train {ae['train_mean_vertex_error']:.2%}, "
+          f"val {val:.2%} of the bbox diagonal" if val is not None else "")
+    print(f"U(Z): {la['uniform_collision_fraction']:.1%} of {la['n_samples']} decoded samples self-collide")
+    print(f"results: {run_dir}   (tensorboard --logdir {run_dir / 'tensorboard'})")
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")

@@ -184,6 +184,8 @@ class ACAP:
         if weights not in ("cotan", "uniform"):
             raise ValueError(f"weights='{weights}': choose 'cotan' or 'uniform'")
         n_vert = len(q)
+        self.settings = {"weights": weights, "min_weight_ratio": min_weight_ratio, "normal_weight": normal_weight,
+                         "root": int(root), "max_turns": int(max_turns)}
         self.n_vertices = n_vert
         self.rest_vertices = q
         self.faces = f

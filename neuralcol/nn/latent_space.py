@@ -1,0 +1,135 @@
+"""A trained latent space: encoder, decoder to vertices, sub-domains, the sampling box Z and U(Z).
+
+``LatentSpace.decode(Z_all (B, D)) -> vertices (B, V, 3)`` is batched, differentiable end to end (network,
+feature de-normalisation, ACAP inverse) and keeps the device and dtype of its input.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from neuralcol.data.features import FeatureNormalizer
+from neuralcol.geometry.acap import ACAP
+from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder, Level2Autoencoders
+
+
+class LatentSpace(nn.Module):
+    """Trained bilevel autoencoder with everything needed to go from latent codes to meshes and back.
+
+    Args:
+        net: the trained bilevel autoencoder.
+        normalizer: fitted feature normaliser.
+        rest_vertices: (V, 3) ACAP rest mesh.
+        faces: (F, 3) triangles.
+        acap_kwargs: keyword arguments of :class:`ACAP`.
+        box_lo, box_hi: (D,) the sampling box Z (paper sec. 4.1).
+        partition: (V,) long sub-domain of each vertex (for PD_i).
+        meta: JSON-able facts (config, errors, training time).
+    """
+
+    def __init__(self, net: BilevelAutoencoder, normalizer: FeatureNormalizer, rest_vertices, faces,
+                 acap_kwargs: dict, box_lo: torch.Tensor, box_hi: torch.Tensor, partition: torch.Tensor,
+                 meta: dict | None = None):
+        super().__init__()
+        self.net = net
+        self.acap_kwargs = dict(acap_kwargs)
+        self.acap = ACAP(rest_vertices, faces, **self.acap_kwargs)
+        self.register_buffer("rest_vertices", torch.as_tensor(np.asarray(rest_vertices), dtype=torch.float64))
+        self.register_buffer("faces", torch.as_tensor(np.asarray(faces), dtype=torch.long))
+        self.register_buffer("norm_center", normalizer.center.float().clone())
+        self.register_buffer("norm_half_range", normalizer.half_range.float().clone())
+        self.norm_bound = normalizer.bound
+        self.register_buffer("box_lo", box_lo.float().clone())
+        self.register_buffer("box_hi", box_hi.float().clone())
+        self.register_buffer("partition", torch.as_tensor(partition, dtype=torch.long).clone())
+        self.meta = dict(meta or {})
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def dim(self) -> int:
+        """D = |Z_all|."""
+        return int(self.box_lo.numel())
+
+    @property
+    def n_parts(self) -> int:
+        """K = |Z_0| = number of sub-domains."""
+        return self.net.level1.n_components
+
+    def blocks(self) -> list[slice]:
+        """Slices of Z_all: [Z_0, Z_1, ..., Z_K]."""
+        k = self.n_parts
+        out = [slice(0, k)]
+        if self.net.level2 is not None:
+            d = self.net.level2.latent_dim
+            out += [slice(k + i * d, k + (i + 1) * d) for i in range(k)]
+        return out
+
+    # ------------------------------------------------------------------ maps
+    def normalize(self, features: torch.Tensor) -> torch.Tensor:
+        return (features - self.norm_center.to(features)) / self.norm_half_range.to(features) * self.norm_bound
+
+    def denormalize(self, normalized: torch.Tensor) -> torch.Tensor:
+        return normalized / self.norm_bound * self.norm_half_range.to(normalized) + self.norm_center.to(normalized)
+
+    def encode(self, vertices: torch.Tensor) -> torch.Tensor:
+        """Meshes (B, V, 3) -> Z_all (B, D)."""
+        feats = self.acap.encode(vertices.detach().to(torch.float64)).to(self.box_lo.dtype)
+        with torch.no_grad():
+            return self.net.encode(self.normalize(feats.to(self.box_lo.device)))
+
+    def decode_features(self, z_all: torch.Tensor) -> torch.Tensor:
+        """Z_all (B, D) -> raw ACAP features (B, V, 9), differentiable."""
+        return self.denormalize(self.net.decode(z_all))
+
+    def decode(self, z_all: torch.Tensor) -> torch.Tensor:
+        """Z_all (B, D) -> vertices (B, V, 3), differentiable, same dtype and device as ``z_all``."""
+        if z_all.ndim != 2 or z_all.shape[1] != self.dim:
+            raise ValueError(f"z_all has shape {tuple(z_all.shape)}, expected (B, {self.dim})")
+        feats = self.decode_features(z_all.to(self.box_lo.dtype))
+        return self.acap.decode(feats).to(z_all.dtype)
+
+    # ------------------------------------------------------------------ box
+    def sample(self, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        """n codes from U(Z), (n, D) float32 on the box's device."""
+        u = torch.rand(n, self.dim, generator=generator, device=self.box_lo.device)
+        return self.box_lo + u * (self.box_hi - self.box_lo)
+
+    def clamp_to_box(self, z_all: torch.Tensor) -> torch.Tensor:
+        return torch.maximum(torch.minimum(z_all, self.box_hi.to(z_all)), self.box_lo.to(z_all))
+
+    # ------------------------------------------------------------------ persistence
+    def save(self, path: str | Path) -> Path:
+        """Save weights, normaliser, box, partition and the architecture to one file."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        l1 = self.net.level1
+        l2 = self.net.level2
+        arch = {"n_vertices": l1.n_vertices, "n_components": l1.n_components, "hidden": l1.comp_in_w.shape[1],
+                "level2": None if l2 is None else {"latent_dim": l2.latent_dim,
+                                                    "hidden": l2.decoders[0][0].out_features}}
+        blob = {"arch": arch, "state": self.state_dict(), "acap_kwargs": self.acap_kwargs,
+                "norm_bound": self.norm_bound, "meta": self.meta}
+        tmp = path.with_name(path.name + ".tmp")
+        torch.save(blob, tmp)
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path, map_location="cpu") -> LatentSpace:
+        blob = torch.load(path, map_location=map_location, weights_only=False)
+        arch, state = blob["arch"], blob["state"]
+        l1 = Level1Autoencoder(arch["n_vertices"], arch["n_components"], arch["hidden"])
+        l2 = None
+        if arch["level2"] is not None:
+            l2 = Level2Autoencoders(state["partition"], arch["n_components"], arch["level2"]["latent_dim"],
+                                    arch["level2"]["hidden"])
+        norm = FeatureNormalizer(bound=blob["norm_bound"])
+        norm.center, norm.half_range = state["norm_center"], state["norm_half_range"]
+        space = cls(BilevelAutoencoder(l1, l2), norm, state["rest_vertices"].numpy(), state["faces"].numpy(),
+                    blob["acap_kwargs"], state["box_lo"], state["box_hi"], state["partition"], blob["meta"])
+        space.load_state_dict(state)
+        return space

@@ -1,0 +1,237 @@
+"""Stage: train (or load from cache) the bilevel autoencoder of a data set -> :class:`LatentSpace`.
+
+Training runs level 1 (attention components), derives the sub-domains, then level 2 on the residuals; the
+result is cached under ``<cache_dir>/autoencoders/<key>/`` where the key hashes the meshes, the ACAP
+settings, the autoencoder config and the seed, so a later run with the same inputs loads it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import lightning as L
+import numpy as np
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+from scipy.cluster.vq import kmeans2
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from neuralcol.data.datasets import MeshDataset
+from neuralcol.data.feature_datamodule import FeatureDataModule
+from neuralcol.data.features import DatasetFeatures, FeatureNormalizer
+from neuralcol.geometry.topology import edge_topology
+from neuralcol.lit.autoencoder import AutoencoderLitModule
+from neuralcol.metrics.reconstruction import relative_vertex_error
+from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder, Level2Autoencoders
+from neuralcol.nn.latent_space import LatentSpace
+
+
+class PartitionReport(NamedTuple):
+    """Sub-domain facts: sizes (K,), connected pieces per sub-domain before and after clean-up."""
+
+    sizes: list[int]
+    pieces_before: list[int]
+    pieces_after: list[int]
+
+
+def split_indices(n: int, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Fixed-seed train / validation split of n meshes: (train indices, val indices), both sorted."""
+    if not 0.0 <= val_fraction < 1.0:
+        raise ValueError(f"val_fraction={val_fraction}: must be in [0, 1)")
+    perm = np.random.default_rng(seed).permutation(n)
+    n_val = int(round(val_fraction * n))
+    return np.sort(perm[n_val:]), np.sort(perm[:n_val])
+
+
+def spatial_attention_init(rest_vertices: np.ndarray, k: int, scale: float, seed: int) -> torch.Tensor:
+    """(K, V) attention logits: ``scale`` on each vertex's k-means cluster of the rest mesh, 0 elsewhere."""
+    _, labels = kmeans2(rest_vertices, k, seed=seed, minit="++")
+    logits = np.zeros((k, len(rest_vertices)), dtype=np.float32)
+    logits[labels, np.arange(len(rest_vertices))] = scale
+    return torch.from_numpy(logits)
+
+
+def count_pieces(partition: np.ndarray, edges: np.ndarray, k: int) -> list[int]:
+    """Connected pieces of each sub-domain (edges with both ends in it)."""
+    out = []
+    for i in range(k):
+        idx = np.nonzero(partition == i)[0]
+        if len(idx) == 0:
+            out.append(0)
+            continue
+        keep = (partition[edges[:, 0]] == i) & (partition[edges[:, 1]] == i)
+        loc = -np.ones(len(partition), dtype=np.int64)
+        loc[idx] = np.arange(len(idx))
+        e = edges[keep]
+        g = coo_matrix((np.ones(len(e)), (loc[e[:, 0]], loc[e[:, 1]])), shape=(len(idx), len(idx)))
+        out.append(int(connected_components(g, directed=False)[0]))
+    return out
+
+
+def connect_partition(partition: np.ndarray, edges: np.ndarray, k: int, max_rounds: int = 20) -> np.ndarray:
+    """Give every piece but the largest of each sub-domain to the neighbouring sub-domain it touches most.
+
+    Args:
+        partition: (V,) int sub-domain per vertex.
+        edges: (E, 2) mesh edges.
+        k: number of sub-domains.
+        max_rounds: repetitions (pieces can merge in cascades).
+
+    Returns:
+        (V,) int partition where each sub-domain is one connected piece where possible.
+    """
+    part = partition.copy()
+    n = len(part)
+    for _ in range(max_rounds):
+        changed = False
+        for i in range(k):
+            keep = (part[edges[:, 0]] == i) & (part[edges[:, 1]] == i)
+            e = edges[keep]
+            g = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+            _, comp = connected_components(g, directed=False)
+            members = np.nonzero(part == i)[0]
+            if len(members) == 0:
+                continue
+            labels, counts = np.unique(comp[members], return_counts=True)
+            if len(labels) <= 1:
+                continue
+            main = labels[np.argmax(counts)]
+            for lab in labels:
+                if lab == main:
+                    continue
+                piece = members[comp[members] == lab]
+                mask = np.zeros(n, dtype=bool)
+                mask[piece] = True
+                touching = np.concatenate([part[edges[mask[edges[:, 0]] & ~mask[edges[:, 1]], 1]],
+                                           part[edges[mask[edges[:, 1]] & ~mask[edges[:, 0]], 0]]])
+                touching = touching[touching != i]
+                if len(touching):
+                    part[piece] = np.bincount(touching, minlength=k).argmax()
+                    changed = True
+        if not changed:
+            break
+    return part
+
+
+def autoencoder_cache_key(ds: MeshDataset, reference_index: int, acap_kwargs: dict, ae_cfg: dict,
+                          latent_cfg: dict, seed: int) -> str:
+    h = hashlib.sha1()
+    h.update(ds.vertices.detach().cpu().numpy().tobytes())
+    h.update(ds.faces.cpu().numpy().tobytes())
+    h.update(json.dumps([reference_index, acap_kwargs, ae_cfg, latent_cfg, seed], sort_keys=True,
+                        default=str).encode())
+    return h.hexdigest()[:16]
+
+
+def _trainer(ae_cfg: dict, epochs: int, logger, callbacks=()) -> L.Trainer:
+    return L.Trainer(max_epochs=epochs, accelerator=ae_cfg.get("accelerator", "auto"), devices=1,
+                     logger=logger if logger is not None else False, enable_checkpointing=False,
+                     enable_progress_bar=bool(ae_cfg.get("progress_bar", True)), enable_model_summary=False,
+                     log_every_n_steps=1, check_val_every_n_epoch=int(ae_cfg.get("val_every", 50)),
+                     callbacks=list(callbacks), deterministic=False)
+
+
+def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConfig | dict,
+                       latent_cfg: DictConfig | dict, seed: int, logger=None) -> tuple[LatentSpace, dict]:
+    """Train the bilevel autoencoder of a data set.
+
+    Args:
+        ds: the meshes.
+        feats: their ACAP features (``feats.acap`` is the transform; its settings go into the result).
+        ae_cfg: autoencoder training config (``conf/autoencoder/*.yaml``).
+        latent_cfg: latent sizes of this data set (``dataset.latent``).
+        seed: seed of the split, initialisation and shuffling.
+        logger: Lightning logger (TensorBoard) or None.
+
+    Returns:
+        The latent space and a report dict (errors, partition facts, seconds).
+    """
+    ae = OmegaConf.to_container(ae_cfg, resolve=True) if isinstance(ae_cfg, DictConfig) else dict(ae_cfg)
+    lat = OmegaConf.to_container(latent_cfg, resolve=True) if isinstance(latent_cfg, DictConfig) else dict(latent_cfg)
+    t_start = time.perf_counter()
+    L.seed_everything(seed, workers=True, verbose=False)
+    n = len(ds)
+    train_idx, val_idx = split_indices(n, ae["val_fraction"], seed)
+    normalizer = FeatureNormalizer(**ae.get("normalizer", {})).fit(feats.features[torch.as_tensor(train_idx)])
+    x = normalizer.normalize(feats.features.float())
+    rest = ds.vertices[feats.reference_index].detach().cpu().numpy().astype(np.float64)
+    faces = ds.faces.cpu().numpy()
+    edges = edge_topology(faces).edges
+    k = int(lat["n_components"])
+    l1cfg, l2cfg = ae["level1"], ae["level2"]
+    init = spatial_attention_init(rest, k, float(l1cfg["attention_init_scale"]), seed)
+    level1 = Level1Autoencoder(ds.n_vertices, k, hidden=int(l1cfg["hidden"]), attention_init=init)
+    net = BilevelAutoencoder(level1)
+    dm = FeatureDataModule(x, train_idx, val_idx, batch_size=int(ae["batch_size"]), seed=seed)
+    stage1 = AutoencoderLitModule(
+        net, 1, optimizer=instantiate(ae["optimizer"], lr=l1cfg["lr"]),
+        scheduler=instantiate(ae["scheduler"]) if ae.get("scheduler") else None,
+        edges=torch.as_tensor(edges), w_sparsity=l1cfg["w_sparsity"], w_smoothness=l1cfg["w_smoothness"],
+        w_balance=l1cfg["w_balance"])
+    _trainer(ae, int(l1cfg["epochs"]), logger).fit(stage1, dm)
+    with torch.no_grad():
+        raw_part = net.level1.attention().argmax(0).cpu().numpy()
+    part = connect_partition(raw_part, edges, k)
+    report_part = PartitionReport(np.bincount(part, minlength=k).tolist(), count_pieces(raw_part, edges, k),
+                                  count_pieces(part, edges, k))
+    net.level2 = Level2Autoencoders(torch.as_tensor(part), k, latent_dim=int(lat["level2_dim"]),
+                                    hidden=int(l2cfg["hidden"]))
+    stage2 = AutoencoderLitModule(net, 2, optimizer=instantiate(ae["optimizer"], lr=l2cfg["lr"]),
+                                  scheduler=instantiate(ae["scheduler"]) if ae.get("scheduler") else None)
+    if int(l2cfg["epochs"]) > 0:
+        _trainer(ae, int(l2cfg["epochs"]), logger).fit(stage2, dm)
+    net.eval().cpu()
+    with torch.no_grad():
+        z = net.encode(x)
+    lo, hi = z.amin(0), z.amax(0)
+    margin = float(ae.get("box_margin", 0.0)) * (hi - lo)
+    acap_kwargs = dict(feats.acap.settings)
+    space = LatentSpace(net, normalizer, rest, faces, acap_kwargs, lo - margin, hi + margin,
+                        torch.as_tensor(part), meta={})
+    with torch.no_grad():
+        recon = space.decode(z)
+    err = relative_vertex_error(recon, ds.vertices.float())
+    report = {
+        "n_train": len(train_idx), "n_val": len(val_idx), "latent_dim": space.dim, "n_components": k,
+        "train_mean_vertex_error": float(err.mean[torch.as_tensor(train_idx)].mean()),
+        "val_mean_vertex_error": float(err.mean[torch.as_tensor(val_idx)].mean()) if len(val_idx) else None,
+        "train_max_vertex_error": float(err.max[torch.as_tensor(train_idx)].max()),
+        "partition_sizes": report_part.sizes, "pieces_before_cleanup": report_part.pieces_before,
+        "pieces": report_part.pieces_after, "train_seconds": time.perf_counter() - t_start,
+        "train_index": train_idx.tolist(), "val_index": val_idx.tolist(),
+        "n_parameters": int(sum(p.numel() for p in net.parameters())),
+    }
+    space.meta = report
+    return space, report
+
+
+def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, latent_cfg, seed: int,
+                               cache_dir: str | Path | None, logger=None) -> tuple[LatentSpace, dict, bool]:
+    """Load the cached latent space for these inputs, or train and cache it.
+
+    Returns:
+        (latent space, report, loaded_from_cache)
+    """
+    ae = OmegaConf.to_container(ae_cfg, resolve=True) if isinstance(ae_cfg, DictConfig) else dict(ae_cfg)
+    lat = OmegaConf.to_container(latent_cfg, resolve=True) if isinstance(latent_cfg, DictConfig) else dict(latent_cfg)
+    train_keys = {k: v for k, v in ae.items() if k not in ("progress_bar", "accelerator", "val_every")}
+    key = autoencoder_cache_key(ds, feats.reference_index, feats.acap.settings, train_keys, lat, seed)
+    path = Path(cache_dir) / "autoencoders" / key / "latent_space.pt" if cache_dir else None
+    if path is not None and path.is_file():
+        try:
+            space = LatentSpace.load(path)
+            return space, space.meta, True
+        except Exception:  # a broken cache entry is retrained, not fatal
+            path.unlink()
+    space, report = train_latent_space(ds, feats, ae, lat, seed, logger)
+    if path is not None:
+        space.save(path)
+        (path.parent / "report.json").write_text(json.dumps({k: v for k, v in report.items()
+                                                             if k not in ("train_index", "val_index")}, indent=2))
+    return space, report, False

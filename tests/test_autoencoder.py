@@ -1,0 +1,140 @@
+"""Bilevel autoencoder: shapes, gradients, sub-domains, box sampler, cache reuse."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from conftest import ROOT, make_tube, twist
+from omegaconf import OmegaConf
+
+from neuralcol.data.datasets import MeshDataset
+from neuralcol.data.features import dataset_features
+from neuralcol.geometry.topology import edge_topology
+from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder, Level2Autoencoders
+from neuralcol.nn.latent_space import LatentSpace
+from neuralcol.stages.autoencoder import (
+    connect_partition,
+    count_pieces,
+    split_indices,
+    train_or_load_latent_space,
+)
+
+TINY = OmegaConf.load(ROOT / "conf" / "autoencoder" / "tiny.yaml")
+LATENT = {"n_components": 2, "level2_dim": 2}
+
+
+@pytest.fixture(scope="module")
+def tube_dataset():
+    """Bent and twisted tubes: 12 meshes, 2 natural parts."""
+    rest, faces = make_tube(n_rings=14, n_around=8)
+    meshes = []
+    for a in np.linspace(0, 1.0, 12):
+        v = twist(rest, 0.8 * a)
+        bend = 0.4 * a * (v[:, 2] / 2.0) ** 2  # bend the upper half sideways
+        v = v + np.stack([bend, np.zeros_like(bend), np.zeros_like(bend)], -1)
+        meshes.append(v)
+    verts = torch.as_tensor(np.stack(meshes), dtype=torch.float32)
+    return MeshDataset(verts, torch.as_tensor(faces), [str(i) for i in range(12)])
+
+
+@pytest.fixture(scope="module")
+def tube_space(tube_dataset, tmp_path_factory):
+    feats = dataset_features(tube_dataset, 0)
+    cfg = OmegaConf.merge(TINY, {"level1": {"epochs": 150}, "level2": {"epochs": 100}, "val_fraction": 0.25})
+    cache = tmp_path_factory.mktemp("ae_cache")
+    space, report, cached = train_or_load_latent_space(tube_dataset, feats, cfg, LATENT, 0, cache)
+    assert not cached
+    return space, report, feats, cfg, cache
+
+
+def test_shapes():
+    part = torch.tensor([0, 0, 1, 1, 1])
+    net = BilevelAutoencoder(Level1Autoencoder(5, 2, hidden=3), Level2Autoencoders(part, 2, latent_dim=3))
+    x = torch.randn(4, 5, 9)
+    z = net.encode(x)
+    assert z.shape == (4, 2 + 2 * 3) and net.latent_dim == 8
+    assert net.decode(z).shape == (4, 5, 9)
+    att = net.level1.attention()
+    torch.testing.assert_close(att.sum(0), torch.ones(5))
+
+
+def test_level2_decoder_writes_only_its_subdomain():
+    part = torch.tensor([0, 0, 1, 1, 1])
+    l2 = Level2Autoencoders(part, 2, latent_dim=2)
+    for p in l2.parameters():
+        torch.nn.init.normal_(p)
+    z = torch.zeros(1, 4)
+    z[0, 0] = 1.0  # only Z_1 (sub-domain 0) changes
+    diff = l2.decode(z) - l2.decode(torch.zeros(1, 4))
+    assert diff[0, 2:].abs().max() == 0 and diff[0, :2].abs().max() > 0
+
+
+def test_training_reconstructs_and_covers(tube_space, tube_dataset):
+    space, report, *_ = tube_space
+    assert report["train_mean_vertex_error"] < 0.01, report
+    assert space.partition.shape == (tube_dataset.n_vertices,)
+    assert set(space.partition.tolist()) == {0, 1}, "every vertex in a sub-domain, both sub-domains used"
+    z = space.encode(tube_dataset.vertices[:3])
+    rec = space.decode(z)
+    assert rec.shape == (3, tube_dataset.n_vertices, 3) and torch.isfinite(rec).all()
+
+
+def test_sampler_stays_in_box(tube_space):
+    space = tube_space[0]
+    z = space.sample(2000, torch.Generator().manual_seed(0))
+    assert z.shape == (2000, space.dim)
+    assert (z >= space.box_lo).all() and (z <= space.box_hi).all()
+    assert (z.amax(0) - z.amin(0) > 0.9 * (space.box_hi - space.box_lo)).all(), "fills the box"
+
+
+def test_decode_gradient_matches_finite_differences(tube_space):
+    space = tube_space[0]
+    space64 = LatentSpace.load(tube_space[4] / "autoencoders" / next(
+        p.name for p in (tube_space[4] / "autoencoders").iterdir()) / "latent_space.pt").double()
+    z = space.sample(1, torch.Generator().manual_seed(1)).double().requires_grad_(True)
+    w = torch.randn(1, space.acap.n_vertices, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
+
+    def f(zz):
+        return (space64.decode(zz) * w).sum()
+
+    f(z).backward()
+    eps = 1e-6
+    fd = torch.zeros_like(z)
+    for j in range(z.shape[1]):
+        e = torch.zeros_like(z)
+        e[0, j] = eps
+        fd[0, j] = (f(z.detach() + e) - f(z.detach() - e)) / (2 * eps)
+    torch.testing.assert_close(z.grad, fd, rtol=1e-5, atol=1e-7)
+
+
+def test_cache_reuse_and_save_load(tube_space, tube_dataset):
+    space, report, feats, cfg, cache = tube_space
+    again, report2, cached = train_or_load_latent_space(tube_dataset, feats, cfg, LATENT, 0, cache)
+    assert cached and report2["train_mean_vertex_error"] == report["train_mean_vertex_error"]
+    z = space.sample(4, torch.Generator().manual_seed(3))
+    torch.testing.assert_close(again.decode(z), space.decode(z))
+    other = OmegaConf.merge(cfg, {"level2": {"epochs": 5}})
+    _, _, cached_other = train_or_load_latent_space(tube_dataset, feats, other, LATENT, 0, cache)
+    assert not cached_other, "a different config trains a new model"
+
+
+def test_connect_partition_merges_islands():
+    # a strip 0-1-...-6: part 0 = {0, 1, 2} + island {4}; part 1 = {3} + {5, 6}
+    edges = np.array([[i, i + 1] for i in range(6)])
+    part = np.array([0, 0, 0, 1, 0, 1, 1])
+    assert count_pieces(part, edges, 2) == [2, 2]
+    fixed = connect_partition(part, edges, 2)
+    assert count_pieces(fixed, edges, 2) == [1, 1]
+    assert fixed.tolist() == [0, 0, 0, 1, 1, 1, 1]
+
+
+def test_split_is_fixed_and_disjoint():
+    tr, va = split_indices(71, 0.2, seed=0)
+    tr2, va2 = split_indices(71, 0.2, seed=0)
+    assert (tr == tr2).all() and (va == va2).all() and len(va) == 14 and len(set(tr) | set(va)) == 71
+
+
+def test_edges_helper_consistency(tube_dataset):
+    e = edge_topology(tube_dataset.faces.numpy()).edges
+    assert e.shape[1] == 2
