@@ -50,7 +50,7 @@ def render_mesh_png(path: str | Path, vertices: np.ndarray, faces: np.ndarray, v
     # simple shading: darken faces turned away from the viewer's light
     n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    fig = plt.figure(figsize=(size * len(views), size))
+    fig = plt.figure(figsize=(size * len(views) * 0.6, size))
     center = 0.5 * (v.max(0) + v.min(0))
     half = 0.5 * (v.max(0) - v.min(0)).max()
     for i, (elev, azim) in enumerate(views):
@@ -64,6 +64,7 @@ def render_mesh_png(path: str | Path, vertices: np.ndarray, faces: np.ndarray, v
         ax.set_ylim(center[1] - half, center[1] + half)
         ax.set_zlim(center[2] - half, center[2] + half)
         ax.view_init(elev=elev, azim=azim)
+        ax.set_box_aspect((1, 1, 1), zoom=1.8)
         ax.set_axis_off()
     if title:
         fig.suptitle(title)

@@ -129,6 +129,16 @@ def autoencoder_cache_key(ds: MeshDataset, reference_index: int, acap_kwargs: di
     return h.hexdigest()[:16]
 
 
+def _scheduler(ae_cfg: dict, epochs: int):
+    """The configured LR scheduler partial; a ``T_max: null`` entry is set to the stage's epochs."""
+    cfg = ae_cfg.get("scheduler")
+    if not cfg:
+        return None
+    if "T_max" in cfg and cfg["T_max"] is None:
+        return instantiate(cfg, T_max=max(1, epochs))
+    return instantiate(cfg)
+
+
 def _trainer(ae_cfg: dict, epochs: int, logger, callbacks=()) -> L.Trainer:
     return L.Trainer(max_epochs=epochs, accelerator=ae_cfg.get("accelerator", "auto"), devices=1,
                      logger=logger if logger is not None else False, enable_checkpointing=False,
@@ -170,8 +180,7 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
     net = BilevelAutoencoder(level1)
     dm = FeatureDataModule(x, train_idx, val_idx, batch_size=int(ae["batch_size"]), seed=seed)
     stage1 = AutoencoderLitModule(
-        net, 1, optimizer=instantiate(ae["optimizer"], lr=l1cfg["lr"]),
-        scheduler=instantiate(ae["scheduler"]) if ae.get("scheduler") else None,
+        net, 1, optimizer=instantiate(ae["optimizer"], lr=l1cfg["lr"]), scheduler=_scheduler(ae, int(l1cfg["epochs"])),
         edges=torch.as_tensor(edges), w_sparsity=l1cfg["w_sparsity"], w_smoothness=l1cfg["w_smoothness"],
         w_balance=l1cfg["w_balance"])
     _trainer(ae, int(l1cfg["epochs"]), logger).fit(stage1, dm)
@@ -183,7 +192,7 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
     net.level2 = Level2Autoencoders(torch.as_tensor(part), k, latent_dim=int(lat["level2_dim"]),
                                     hidden=int(l2cfg["hidden"]))
     stage2 = AutoencoderLitModule(net, 2, optimizer=instantiate(ae["optimizer"], lr=l2cfg["lr"]),
-                                  scheduler=instantiate(ae["scheduler"]) if ae.get("scheduler") else None)
+                                  scheduler=_scheduler(ae, int(l2cfg["epochs"])))
     if int(l2cfg["epochs"]) > 0:
         _trainer(ae, int(l2cfg["epochs"]), logger).fit(stage2, dm)
     net.eval().cpu()
