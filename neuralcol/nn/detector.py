@@ -1,0 +1,137 @@
+"""Neural collision detector over latent codes (paper sec. 3.2) and its training losses (sec. 4.3).
+
+``S_0 = CSE(Z_all)``, ``S_i = CP(S_0, z0_i, Z_i)`` for each sub-domain i with weights shared across i (so
+the parameter count grows with |Z_0| only through the input width of CSE and MLP_c), and
+``p = MLP_c(S_1, ..., S_K)`` the probability that the decoded mesh self-collides. Smooth activations
+(tanh, CELU) keep gradients useful for the Newton projector and the handler.
+
+Symbols: B batch, D = |Z_all|, K = |Z_0| sub-domains, d = level-2 code size.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+class DetectorOutput(NamedTuple):
+    """prob (B,) collision probability, logit (B,), s (B, K) per-sub-domain indicators S_i."""
+
+    prob: torch.Tensor
+    logit: torch.Tensor
+    s: torch.Tensor
+
+
+def _mlp(sizes: list[int], act: type[nn.Module]) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i in range(len(sizes) - 1):
+        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
+        if i < len(sizes) - 2:
+            layers.append(act())
+    return nn.Sequential(*layers)
+
+
+class CollisionDetector(nn.Module):
+    """CSE -> CP_i (shared) -> MLP_c.
+
+    Args:
+        n_components: K = |Z_0|.
+        level2_dim: d (0 if the latent space has no level 2).
+        state_dim: width of S_0.
+        hidden: hidden width of CSE, CP and MLP_c.
+    """
+
+    def __init__(self, n_components: int, level2_dim: int, state_dim: int = 64, hidden: int = 128):
+        super().__init__()
+        self.n_components = n_components
+        self.level2_dim = level2_dim
+        latent_dim = n_components * (1 + level2_dim)
+        self.cse = nn.Sequential(_mlp([latent_dim, hidden, state_dim], nn.CELU), nn.Tanh())
+        self.cp = _mlp([state_dim + 1 + level2_dim, hidden, hidden, 1], nn.CELU)
+        self.mlp_c = _mlp([n_components, hidden, 1], nn.CELU)
+
+    @property
+    def latent_dim(self) -> int:
+        return self.n_components * (1 + self.level2_dim)
+
+    def split(self, z_all: torch.Tensor) -> torch.Tensor:
+        """(B, D) -> per-sub-domain inputs (B, K, 1 + d): [z0_i, Z_i]."""
+        k, d = self.n_components, self.level2_dim
+        z0 = z_all[:, :k, None]  # (B, K, 1)
+        if d == 0:
+            return z0
+        return torch.cat([z0, z_all[:, k:].reshape(-1, k, d)], dim=-1)  # (B, K, 1 + d)
+
+    def forward(self, z_all: torch.Tensor) -> DetectorOutput:
+        """Z_all (B, D) -> DetectorOutput."""
+        if z_all.ndim != 2 or z_all.shape[1] != self.latent_dim:
+            raise ValueError(f"z_all has shape {tuple(z_all.shape)}, expected (B, {self.latent_dim})")
+        s0 = self.cse(z_all)  # (B, S)
+        parts = self.split(z_all)  # (B, K, 1 + d)
+        cp_in = torch.cat([s0[:, None, :].expand(-1, self.n_components, -1), parts], dim=-1)
+        s = self.cp(cp_in)[..., 0]  # (B, K)
+        logit = self.mlp_c(s)[:, 0]
+        return DetectorOutput(torch.sigmoid(logit), logit, s)
+
+
+def smooth_max(s: torch.Tensor, temperature: float) -> torch.Tensor:
+    """Soft maximum over the last axis: ``t * logsumexp(s / t)`` (-> max as t -> 0). (B, K) -> (B,)."""
+    return temperature * torch.logsumexp(s / temperature, dim=-1)
+
+
+class DetectorLosses(NamedTuple):
+    """Terms of the detector loss (scalars): total, pd, rank, ce, boundary."""
+
+    total: torch.Tensor
+    pd: torch.Tensor
+    rank: torch.Tensor
+    ce: torch.Tensor
+    boundary: torch.Tensor
+
+
+def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor, subset: torch.Tensor,
+                    w_pd: float, w_pdsum: float, w_r: float, w_ce: float, w_b: float, margin: float,
+                    temperature: float) -> DetectorLosses:
+    """``L = w_PD L_PD + w_r L_r + w_ce L_ce + w_b L_b`` (paper sec. 4.3) on one batch.
+
+    - ``L_PD = mean_B [ sum_i (S_i - PD_i)^2 + w_PDsum (smax(S) - PD)^2 ]``: PD_i are the labeler's
+      per-part depths and PD = max_i PD_i (docs/labels.md), so the aggregate is a smooth max
+      (``temperature``) instead of the paper's sum.
+    - ``L_r = mean over ordered pairs (a, b) of the batch with PD_a < PD_b of max(0, margin - (smax(S_b) -
+      smax(S_a)))``: the predicted depths keep the order of the true ones by at least ``margin``.
+    - ``L_ce``: binary cross-entropy of the collision probability on D_p and D_n (subset 0 and 1).
+    - ``L_b = mean over D_b (subset 2) of |p - 0.5|`` (paper eq. 3).
+
+    Args:
+        out: detector output for the batch.
+        pd: (B,) PD targets (already scaled).
+        pd_sub: (B, K) PD_i targets (same scale).
+        subset: (B,) int codes 0 = D_p, 1 = D_n, 2 = D_b.
+        w_pd, w_pdsum, w_r, w_ce, w_b: weights (paper: 5, 0.2, 2, 2, 0.5).
+        margin: ranking margin alpha.
+        temperature: smooth-max temperature.
+
+    Returns:
+        DetectorLosses; terms without samples (e.g. no D_b in the batch) are 0.
+    """
+    agg = smooth_max(out.s, temperature)  # (B,)
+    l_pd = (((out.s - pd_sub) ** 2).sum(-1) + w_pdsum * (agg - pd) ** 2).mean()
+    less = pd[:, None] < pd[None, :]  # (B, B): PD_a < PD_b
+    if less.any():
+        gap = agg[None, :] - agg[:, None]  # smax_b - smax_a
+        l_r = F.relu(margin - gap)[less].mean()
+    else:
+        l_r = agg.new_zeros(())
+    label_mask = subset != 2
+    if label_mask.any():
+        target = (subset[label_mask] == 0).to(out.logit.dtype)
+        l_ce = F.binary_cross_entropy_with_logits(out.logit[label_mask], target)
+    else:
+        l_ce = agg.new_zeros(())
+    bmask = subset == 2
+    l_b = (out.prob[bmask] - 0.5).abs().mean() if bmask.any() else agg.new_zeros(())
+    total = w_pd * l_pd + w_r * l_r + w_ce * l_ce + w_b * l_b
+    return DetectorLosses(total, l_pd, l_r, l_ce, l_b)
