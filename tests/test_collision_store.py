@@ -1,0 +1,64 @@
+"""D_c store: growth by exactly the appended rows, stable split, reopening, crash safety, clear errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from neuralcol.data.collision_store import CollisionStore, StoreCorruptedError
+
+
+def _rows(rng, b, d=6, k=2):
+    pd = rng.normal(size=b).astype(np.float32)
+    return dict(z=rng.normal(size=(b, d)), pd=pd, pd_sub=np.stack([pd, pd - 0.1], 1), collides=(pd > 0),
+                subset=np.where(pd > 0.5, 0, np.where(pd < 0, 1, 2)), origin=0)
+
+
+def test_append_grows_by_exactly_the_rows_and_reopens(tmp_path):
+    rng = np.random.default_rng(0)
+    path = tmp_path / "dc.h5"
+    with CollisionStore(path, 6, 2) as store:
+        ids0 = store.append(round_=0, **_rows(rng, 10))
+        assert len(store) == 10 and ids0.tolist() == list(range(10))
+        first = store.read()
+        store.append(round_=1, **_rows(rng, 7))
+        assert len(store) == 17
+        split_before = store.split_mask()[:10].copy()
+    with CollisionStore(path, 6, 2) as store:
+        rows = store.read()
+        assert len(store) == 17 and rows.id.tolist() == list(range(17))
+        assert rows.round.tolist() == [0] * 10 + [1] * 7
+        np.testing.assert_array_equal(rows.z[:10], first.z)
+        assert (store.split_mask()[:10] == split_before).all(), "the split of old rows does not change"
+        assert store.split_mask().sum() == 3  # ids 4, 9, 14
+
+
+def test_crash_mid_append_keeps_committed_rows(tmp_path):
+    import h5py
+
+    rng = np.random.default_rng(1)
+    path = tmp_path / "dc.h5"
+    with CollisionStore(path, 6, 2) as store:
+        store.append(round_=0, **_rows(rng, 8))
+    with h5py.File(path, "a") as h5:  # simulate a crash after writing rows but before committing them
+        for name in h5:
+            h5[name].resize(12, axis=0)
+        h5["pd"][8:12] = 99.0
+    with CollisionStore(path, 6, 2) as store:
+        assert len(store) == 8 and (store.read().pd != 99.0).all()
+        store.append(round_=1, **_rows(rng, 2))  # overwrites the uncommitted rows
+        assert len(store) == 10 and store.read().id.tolist() == list(range(10))
+
+
+def test_errors_name_the_file(tmp_path):
+    bad = tmp_path / "bad.h5"
+    bad.write_bytes(b"not hdf5")
+    with pytest.raises(StoreCorruptedError, match=r"bad\.h5: cannot be opened"):
+        CollisionStore(bad, 6, 2)
+    path = tmp_path / "dc.h5"
+    CollisionStore(path, 6, 2).close()
+    with pytest.raises(StoreCorruptedError, match=r"dc\.h5: holds codes of size 6"):
+        CollisionStore(path, 8, 2)
+    with CollisionStore(path, 6, 2) as store, pytest.raises(ValueError, match=r"expected \(B, 6\)"):
+        store.append(z=np.zeros((3, 5)), pd=np.zeros(3), pd_sub=np.zeros((3, 2)), collides=np.zeros(3),
+                      subset=np.zeros(3), round_=0, origin=0)
