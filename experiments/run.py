@@ -10,7 +10,9 @@ Hydra run directory.
 from __future__ import annotations
 
 import json
+import logging
 import time
+import warnings
 from pathlib import Path
 
 import hydra
@@ -124,6 +126,9 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 @report_user_errors
 def main(cfg: DictConfig) -> None:
+    # keep the terminal readable: Lightning's hardware banner and tips, a third-party deprecation warning
+    logging.getLogger("lightning.pytorch.utilities.rank_zero").setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*")
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     metrics = run(cfg, run_dir)
     print_summary(metrics, run_dir)
