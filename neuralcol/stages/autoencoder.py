@@ -129,6 +129,11 @@ def autoencoder_cache_key(ds: MeshDataset, reference_index: int, acap_kwargs: di
     return h.hexdigest()[:16]
 
 
+def _as_dict(cfg: DictConfig | dict) -> dict:
+    """A plain dict of a Hydra config node (resolved) or of a mapping."""
+    return OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
+
+
 def _scheduler(ae_cfg: dict, epochs: int):
     """The configured LR scheduler partial; a ``T_max: null`` entry is set to the stage's epochs."""
     cfg = ae_cfg.get("scheduler")
@@ -162,8 +167,7 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
     Returns:
         The latent space and a report dict (errors, partition facts, seconds).
     """
-    ae = OmegaConf.to_container(ae_cfg, resolve=True) if isinstance(ae_cfg, DictConfig) else dict(ae_cfg)
-    lat = OmegaConf.to_container(latent_cfg, resolve=True) if isinstance(latent_cfg, DictConfig) else dict(latent_cfg)
+    ae, lat = _as_dict(ae_cfg), _as_dict(latent_cfg)
     t_start = time.perf_counter()
     L.seed_everything(seed, workers=True, verbose=False)
     n = len(ds)
@@ -227,8 +231,7 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
     Returns:
         (latent space, report, loaded_from_cache)
     """
-    ae = OmegaConf.to_container(ae_cfg, resolve=True) if isinstance(ae_cfg, DictConfig) else dict(ae_cfg)
-    lat = OmegaConf.to_container(latent_cfg, resolve=True) if isinstance(latent_cfg, DictConfig) else dict(latent_cfg)
+    ae, lat = _as_dict(ae_cfg), _as_dict(latent_cfg)
     train_keys = {k: v for k, v in ae.items() if k not in ("progress_bar", "accelerator", "val_every")}
     key = autoencoder_cache_key(ds, feats.reference_index, feats.acap.settings, train_keys, lat, seed)
     path = Path(cache_dir) / "autoencoders" / key / "latent_space.pt" if cache_dir else None
