@@ -1,10 +1,11 @@
 """Main entry point: ``python -m experiments.run [hydra overrides]``.
 
-Runs the pipeline stages that exist so far on the configured data set (default: the procedural hand):
-load and validate the meshes, compute ACAP features, check the ACAP round trip, label the meshes exactly
-(self-intersection and PD), train (or load from the cache) the bilevel autoencoder, picture its
-sub-domains, label decoded samples from U(Z), export example meshes, and write ``metrics.json`` into the
-Hydra run directory.
+Runs the pipeline on the configured data set (default: the procedural hand): load and validate the meshes,
+compute ACAP features, check the ACAP round trip, label the meshes exactly (self-intersection and PD), train
+(or load from the cache) the bilevel autoencoder, picture its sub-domains, train the neural collision
+detector with the configured method (``method=supv|supv_bd|active``) round by round, export example meshes,
+and write ``metrics.json`` into the Hydra run directory. Re-running with the same ``hydra.run.dir`` resumes
+an interrupted run after its last finished round.
 """
 
 from __future__ import annotations
@@ -22,12 +23,14 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from neuralcol.active.oracle import LatentOracle
 from neuralcol.collision.pool import LabelPool
 from neuralcol.data.features import dataset_features
 from neuralcol.geometry.mesh_io import write_meshes
 from neuralcol.metrics.plots import partition_colors, render_mesh_png
 from neuralcol.metrics.reconstruction import relative_vertex_error
 from neuralcol.stages.autoencoder import train_or_load_latent_space
+from neuralcol.stages.detector import train_detector
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.seeding import seed_everything
 
@@ -71,16 +74,14 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     colors = (partition_colors(part)[:, :3] * 255).astype("uint8")
     logger.experiment.add_mesh("subdomains", vertices=torch.as_tensor(rest[None]).float(),
                                colors=torch.as_tensor(colors[None]), faces=torch.as_tensor(faces[None]))
-    # decoded samples from U(Z), labeled exactly (both classes are needed by the detector)
-    gen = torch.Generator().manual_seed(int(cfg.seed))
-    z = space.sample(int(cfg.latent_eval.n_samples), gen)
-    with torch.no_grad():
-        samples = torch.cat([space.decode(c) for c in z.split(256)]).numpy().astype("float64")
-    finite = bool(np.isfinite(samples).all())
+    # the neural collision detector, trained by the configured method on labeled decoded samples
     sample_labeler = instantiate(cfg.labeling.labeler)(faces, rest, partition=part)
-    with LabelPool(sample_labeler, **OmegaConf.to_container(cfg.labeling.pool), desc="labeling U(Z)") as pool:
-        uz = pool.label(samples)
-    logger.experiment.add_scalar("latent/uniform_collision_fraction", float(uz.collides.mean()))
+    t0 = time.perf_counter()
+    with LabelPool(sample_labeler, **OmegaConf.to_container(cfg.labeling.pool)) as pool:
+        oracle = LatentOracle(space, pool)
+        det = train_detector(space, oracle, cfg.detector, cfg.method, ae_report["cache_key"], int(cfg.seed),
+                             cfg.paths.cache_dir, run_dir, logger)
+    t_det = time.perf_counter() - t0
     logger.finalize("success")
     k = min(int(cfg.n_example_meshes), len(ds))
     if k > 0:
@@ -97,9 +98,10 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
             "pd_max": float(labels.pd.max()), "seconds": t_label},
         "autoencoder": {**{k_: v for k_, v in ae_report.items() if k_ not in ("train_index", "val_index")},
                         "from_cache": ae_cached, "stage_seconds": t_ae},
-        "latent": {"dim": space.dim, "n_parts": space.n_parts, "n_samples": len(z), "finite": finite,
-                   "uniform_collision_fraction": float(uz.collides.mean()),
-                   "uniform_pd_quantiles": np.quantile(uz.pd, [0.05, 0.5, 0.95]).tolist()},
+        "latent": {"dim": space.dim, "n_parts": space.n_parts,
+                   "uniform_collision_fraction": det["detector"]["test_set"]["base_rate"]},
+        "detector": {**det["detector"], "stage_seconds": t_det},
+        "rounds": det["rounds"],
     }
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
@@ -119,7 +121,13 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
     print(f"autoencoder{' (cached)' if ae['from_cache'] else ''}: |Z_all| = {la['dim']}, {la['n_parts']} sub-domains "
           f"(pieces {ae['pieces']}); mean vertex error train {ae['train_mean_vertex_error']:.2%}, "
           f"val {val:.2%} of the bbox diagonal" if val is not None else "")
-    print(f"U(Z): {la['uniform_collision_fraction']:.1%} of {la['n_samples']} decoded samples self-collide")
+    dt = metrics["detector"]
+    print(f"U(Z): {la['uniform_collision_fraction']:.1%} of the {dt['test_set']['n']} test samples self-collide")
+    print(f"detector ({dt['method']}), stopped by {dt['stopped_by']}:")
+    print("  |D_c|    accuracy  FNR     FPR     balanced")
+    for r in metrics["rounds"]:
+        print(f"  {r['dataset_size']:<8d} {r['accuracy']:.4f}    {r['fnr']:.4f}  {r['fpr']:.4f}  "
+              f"{r['balanced_accuracy']:.4f}")
     print(f"results: {run_dir}   (tensorboard --logdir {run_dir / 'tensorboard'})")
 
 

@@ -35,7 +35,7 @@ def test_run_on_scape(tmp_path, scape_dir):
     from experiments.run import run
 
     cfg = _compose(["dataset=scape", f"paths.data_dir={scape_dir.parent}", f"paths.cache_dir={tmp_path}/cache",
-                    "n_example_meshes=2", "autoencoder=tiny", "latent_eval.n_samples=8", "labeling.pool.workers=0",
+                    "n_example_meshes=2", "autoencoder=tiny", "detector=tiny", "labeling.pool.workers=0",
                     "labeling.pool.progress=false"])
     metrics = run(cfg, tmp_path / "run")
     saved = json.loads((tmp_path / "run" / "metrics.json").read_text())
@@ -44,7 +44,10 @@ def test_run_on_scape(tmp_path, scape_dir):
     assert saved["acap"]["worst_mesh_mean_rel_error"] <= 2e-3
     assert sorted(p.name for p in (tmp_path / "run" / "examples" / "input").iterdir()) == ["1.obj", "2.obj"]
     assert saved["dataset_labels"]["colliding"] == ["8", "71"]
-    assert saved["latent"]["dim"] == 8 * (1 + 3) and saved["latent"]["finite"]
+    assert saved["latent"]["dim"] == 8 * (1 + 3)
+    assert [r["dataset_size"] for r in saved["rounds"]] == [120, 180, 240]  # detector=tiny: N_init 120, N_aug 60
+    assert saved["detector"]["method"] == "active" and saved["detector"]["test_set"]["n"] == 200
+    assert (tmp_path / "run" / "detector.pt").is_file() and (tmp_path / "run" / "dc.h5").is_file()
     assert sum(saved["autoencoder"]["partition_sizes"]) == 2161
     assert (tmp_path / "run" / "subdomains.png").stat().st_size > 10_000
     assert any((tmp_path / "run" / "tensorboard").iterdir()), "TensorBoard event files"
@@ -58,7 +61,7 @@ def test_scape_autoencoder_cpu_preset(tmp_path, scape_dir):
     from experiments.run import run
 
     cfg = _compose(["dataset=scape", f"paths.data_dir={scape_dir.parent}", f"paths.cache_dir={tmp_path}/cache",
-                    "latent_eval.n_samples=200", "autoencoder.progress_bar=false"])
+                    "detector=tiny", "autoencoder.progress_bar=false"])
     m = run(cfg, tmp_path / "run")
     assert m["autoencoder"]["train_mean_vertex_error"] <= 0.01
     assert all(p == 1 for p in m["autoencoder"]["pieces"])

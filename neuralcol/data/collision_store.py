@@ -95,6 +95,11 @@ class CollisionStore:
             raise StoreCorruptedError(f"{self.path}: columns {short} are shorter than the committed {n} rows "
                                       "(truncated file)")
 
+    @property
+    def attrs(self):
+        """The HDF5 file's attributes (e.g. what the rows are: ``kind``, ``seed``); write JSON-able scalars."""
+        return self._h5.attrs
+
     def __len__(self) -> int:
         return int(self._h5.attrs["committed"])
 
@@ -124,6 +129,14 @@ class CollisionStore:
         self._h5.attrs["committed"] = start + b
         self._h5.flush()
         return ids
+
+    def truncate(self, n: int) -> None:
+        """Forget every row past the first ``n`` committed ones (resume after a crash: rows appended after the
+        last checkpoint are dropped; their space is reused by the next append)."""
+        if not 0 <= n <= len(self):
+            raise ValueError(f"{self.path}: cannot truncate {len(self)} rows to {n}")
+        self._h5.attrs["committed"] = int(n)
+        self._h5.flush()
 
     def read(self, index=None) -> CollisionRows:
         """Committed rows (all, or ``index`` into them)."""

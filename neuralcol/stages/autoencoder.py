@@ -229,7 +229,8 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
     """Load the cached latent space for these inputs, or train and cache it.
 
     Returns:
-        (latent space, report, loaded_from_cache)
+        (latent space, report, loaded_from_cache); ``report["cache_key"]`` identifies the latent space (later
+        caches, e.g. labeled test sets, are keyed by it).
     """
     ae, lat = _as_dict(ae_cfg), _as_dict(latent_cfg)
     train_keys = {k: v for k, v in ae.items() if k not in ("progress_bar", "accelerator", "val_every")}
@@ -238,7 +239,7 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
     if path is not None and path.is_file():
         try:
             space = LatentSpace.load(path)
-            return space, space.meta, True
+            return space, {**space.meta, "cache_key": key}, True
         except Exception:  # a broken cache entry is retrained, not fatal
             path.unlink()
     space, report = train_latent_space(ds, feats, ae, lat, seed, logger)
@@ -246,4 +247,4 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
         space.save(path)
         (path.parent / "report.json").write_text(json.dumps({k: v for k, v in report.items()
                                                              if k not in ("train_index", "val_index")}, indent=2))
-    return space, report, False
+    return space, {**report, "cache_key": key}, False

@@ -1,0 +1,138 @@
+"""Where each round's new samples come from (paper sec. 4.2 and the baselines of sec. 5).
+
+* :class:`UniformAcquisition` (``supv``, ``supv_bd``): the next rows of the seed's cached pool of labeled
+  samples from U(Z), so the baselines at size N train on exactly the first N uniform samples.
+* :class:`ProjectedAcquisition` (``active``): half of the new samples are drawn from the current D_c and
+  pulled onto the detector's 0.5 level set by the Newton projector (eq. 2), then labeled exactly; the other
+  half are the next uniform rows (exploration).
+
+Both keep a cursor into the uniform pool, saved with the training checkpoint (``state_dict``).
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from neuralcol.active.newton import newton_project
+from neuralcol.active.oracle import LatentOracle
+from neuralcol.data.collision_store import ORIGIN_PROJECTED, ORIGIN_UNIFORM, CollisionStore
+from neuralcol.data.uniform_samples import labeled_uniform_rows
+
+
+class Acquired(NamedTuple):
+    """New labeled rows: z (B, D), pd (B,), pd_sub (B, K), collides (B,), subset (B,), origin (B,) int8;
+    seconds spent labeling and projecting; info (JSON-able statistics)."""
+
+    z: np.ndarray
+    pd: np.ndarray
+    pd_sub: np.ndarray
+    collides: np.ndarray
+    subset: np.ndarray
+    origin: np.ndarray
+    label_seconds: float
+    project_seconds: float
+    info: dict
+
+
+def _concat(parts: list[Acquired]) -> Acquired:
+    cat = [np.concatenate([getattr(p, f) for p in parts]) for f in Acquired._fields[:6]]
+    info: dict = {}
+    for p in parts:
+        info.update(p.info)
+    return Acquired(*cat, sum(p.label_seconds for p in parts), sum(p.project_seconds for p in parts), info)
+
+
+class UniformAcquisition:
+    """Next rows of the seed's pool of labeled uniform samples.
+
+    Args:
+        pool_path: the cached pool (``.h5``), shared by the runs of one seed.
+        oracle: labels rows the pool does not hold yet.
+        seed: the pool's seed.
+    """
+
+    def __init__(self, pool_path: str | os.PathLike, oracle: LatentOracle, seed: int):
+        self.pool_path = Path(pool_path)
+        self.oracle = oracle
+        self.seed = int(seed)
+        self.cursor = 0
+
+    def take(self, n: int) -> Acquired:
+        """The next ``n`` pool rows (labeling them if the pool is shorter)."""
+        stop = self.cursor + int(n)
+        rows, seconds, labeled = labeled_uniform_rows(self.pool_path, self.oracle, stop, self.seed,
+                                                      desc="labeling uniform samples")
+        sl = slice(self.cursor, stop)
+        self.cursor = stop
+        return Acquired(rows.z[sl], rows.pd[sl], rows.pd_sub[sl], rows.collides[sl], rows.subset[sl],
+                        np.full(int(n), ORIGIN_UNIFORM, np.int8), seconds, 0.0,
+                        {"n_uniform": int(n), "n_uniform_labeled_now": labeled})
+
+    def __call__(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> Acquired:
+        return self.take(n)
+
+    def state_dict(self) -> dict:
+        return {"cursor": self.cursor}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.cursor = int(state["cursor"])
+
+
+class ProjectedAcquisition(UniformAcquisition):
+    """Algorithm 1's data aggregation: ``round(n * projected_fraction)`` codes drawn from D_c and projected onto
+    the detector's 0.5 level set, plus uniform rows for the rest.
+
+    Args:
+        pool_path, oracle, seed: as :class:`UniformAcquisition`.
+        box_lo, box_hi: (D,) the box Z (projected codes stay inside).
+        projected_fraction: share of projected samples (paper: 1/2).
+        newton: keyword arguments of :func:`~neuralcol.active.newton.newton_project`.
+    """
+
+    def __init__(self, pool_path, oracle: LatentOracle, seed: int, box_lo: torch.Tensor, box_hi: torch.Tensor,
+                 projected_fraction: float = 0.5, newton: dict | None = None):
+        super().__init__(pool_path, oracle, seed)
+        if not 0.0 <= projected_fraction <= 1.0:
+            raise ValueError(f"projected_fraction={projected_fraction} must be in [0, 1]")
+        self.box_lo, self.box_hi = box_lo.detach().cpu().float(), box_hi.detach().cpu().float()
+        self.projected_fraction = float(projected_fraction)
+        self.newton = dict(newton or {})
+
+    def project(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> Acquired:
+        t0 = time.perf_counter()
+        gen = np.random.default_rng([self.seed, round_])
+        n = min(n, len(store))
+        pick = np.sort(gen.choice(len(store), size=n, replace=False))
+        z0 = torch.as_tensor(store.read(pick).z)
+        dev = next(net.parameters()).device
+        # in float64: eps_z = 1e-7 (paper) is below float32's resolution, so float32 iterates never settle
+        net64 = copy.deepcopy(net).double().eval()
+        lo, hi = self.box_lo.to(dev, torch.float64), self.box_hi.to(dev, torch.float64)
+        proj = newton_project(lambda z: net64(z).logit, z0.to(dev, torch.float64), lo, hi, **self.newton)
+        z = proj.z[proj.finite].float().cpu()
+        t_proj = time.perf_counter() - t0
+        lab = self.oracle(z, desc="labeling projected samples")
+        with torch.no_grad():
+            p = torch.sigmoid(net64(z.to(dev, torch.float64)).logit).cpu().numpy() if len(z) else np.zeros(0)
+        info = {"n_projected": int(len(z)), "n_projection_failed": int((~proj.finite).sum()),
+                "newton_converged_fraction": float(proj.converged.float().mean()) if n else float("nan"),
+                "newton_mean_iterations": float(proj.iterations.float().mean()) if n else float("nan"),
+                "projected_prob_mean": float(p.mean()) if len(p) else float("nan"),
+                "projected_collide_fraction": float(lab.collides.mean()) if len(z) else float("nan"),
+                "projected_boundary_fraction": float((lab.subset == 2).mean()) if len(z) else float("nan")}
+        return Acquired(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset,
+                        np.full(len(z), ORIGIN_PROJECTED, np.int8), lab.seconds, t_proj, info)
+
+    def __call__(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> Acquired:
+        n_proj = int(round(n * self.projected_fraction))
+        projected = self.project(round_, net, store, n_proj)
+        # failed projections (non-finite) are replaced by uniform samples, so D_c grows by exactly n
+        uniform = self.take(n - len(projected.z))
+        return _concat([projected, uniform])

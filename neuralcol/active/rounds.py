@@ -1,0 +1,178 @@
+"""Rounds of D_c growth as a Lightning Callback (paper Algorithm 1, and the baselines' re-training).
+
+One ``Trainer.fit`` covers every round. The callback watches the epochs: when the last epoch of a round ends
+it (1) evaluates the detector on the fixed test set and records the round, (2) stops at ``max_rounds`` or at
+the elbow of accuracy vs data set size (Kneedle), otherwise (3) acquires ``n_aug`` new labeled samples
+(uniform for the baselines, Newton-projected + uniform for ``active``) and appends them to D_c, (4) switches
+to the update schedule (fine-tuning warm-started for ``active``: lr 1e-4, batch 1024, 50 epochs; training from
+scratch for the baselines) and (5) saves a checkpoint, so an interrupted run resumes after the last finished
+round with D_c truncated to the rows that checkpoint knew.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+
+from neuralcol.active.acquisition import UniformAcquisition
+from neuralcol.active.stopping import should_stop
+from neuralcol.data.collision_datamodule import CollisionDataModule
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """How the detector is trained in a round: epochs, Adam lr, batch size, and whether the weights and the
+    optimizer restart from scratch (baselines) or continue (active fine-tuning)."""
+
+    epochs: int
+    lr: float
+    batch_size: int
+    reinit: bool = False
+
+    def __post_init__(self):
+        if self.epochs < 1 or self.lr <= 0 or self.batch_size < 1:
+            raise ValueError(f"schedule {self}: epochs and batch_size must be >= 1 and lr > 0")
+
+
+def write_json_atomic(path: Path, obj) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2))
+    tmp.replace(path)
+
+
+class DataRounds(L.Callback):
+    """Grows D_c round by round inside one fit.
+
+    Args:
+        datamodule: D_c (already holding the bootstrap rows, round 0).
+        acquire: the method's acquisition (uniform or projected).
+        evaluate: module -> dict of test metrics (``accuracy`` among them).
+        bootstrap: schedule of round 0.
+        update: schedule of every later round.
+        n_aug: samples added per round.
+        max_rounds: rounds after the bootstrap (0 = bootstrap only).
+        stop_at_elbow: stop at the elbow of accuracy vs size (Kneedle) once ``elbow_min_points`` rounds exist.
+        elbow_min_points, elbow_sensitivity: Kneedle settings.
+        checkpoint_path: where each finished round saves the training state.
+        seed: seeds re-initialisation in the baselines' rounds.
+        on_round: called with the list of round records after each round (metrics.json, TensorBoard).
+    """
+
+    def __init__(self, datamodule: CollisionDataModule, acquire: UniformAcquisition, evaluate: Callable,
+                 bootstrap: Schedule, update: Schedule, n_aug: int, max_rounds: int, stop_at_elbow: bool,
+                 elbow_min_points: int, elbow_sensitivity: float, checkpoint_path: str | Path, seed: int,
+                 on_round: Callable[..., None] | None = None):
+        if n_aug < 1 or max_rounds < 0:
+            raise ValueError(f"n_aug={n_aug} must be >= 1 and max_rounds={max_rounds} >= 0")
+        self.dm = datamodule
+        self.acquire = acquire
+        self.evaluate = evaluate
+        self.bootstrap, self.update = bootstrap, update
+        self.n_aug, self.max_rounds = int(n_aug), int(max_rounds)
+        self.stop_at_elbow = bool(stop_at_elbow)
+        self.elbow_min_points, self.elbow_sensitivity = int(elbow_min_points), float(elbow_sensitivity)
+        self.checkpoint_path = Path(checkpoint_path)
+        self.seed = int(seed)
+        self.on_round = on_round
+        # state saved with checkpoints
+        self.round = 0
+        self.round_end_epoch = bootstrap.epochs - 1
+        self.rounds: list[dict] = []
+        self.finished = False
+        self.stopped_by: str | None = None
+        self.elbow: float | None = None
+        self.seconds = {"label": 0.0, "train": 0.0, "project": 0.0}
+        self.store_len: int | None = None
+        self._epoch_t0 = 0.0
+
+    @property
+    def max_epochs(self) -> int:
+        return self.bootstrap.epochs + self.max_rounds * self.update.epochs
+
+    def add_label_seconds(self, seconds: float) -> None:
+        self.seconds["label"] += float(seconds)
+
+    def schedule(self) -> Schedule:
+        return self.bootstrap if self.round == 0 else self.update
+
+    # ---------------------------------------------------------------- checkpoint state
+    def state_dict(self) -> dict:
+        return {"round": self.round, "round_end_epoch": self.round_end_epoch, "rounds": self.rounds,
+                "finished": self.finished, "stopped_by": self.stopped_by, "elbow": self.elbow,
+                "seconds": dict(self.seconds), "store_len": self.store_len, "batch_size": self.dm.batch_size,
+                "acquire": self.acquire.state_dict(), "schedules": [asdict(self.bootstrap), asdict(self.update)]}
+
+    def load_state_dict(self, state: dict) -> None:
+        wanted = [asdict(self.bootstrap), asdict(self.update)]
+        if state["schedules"] != wanted:
+            raise ValueError(f"{self.checkpoint_path}: the checkpoint was trained with schedules "
+                             f"{state['schedules']}, the config asks for {wanted}; resume with the same method "
+                             "and detector settings or start a new run directory")
+        self.round, self.round_end_epoch = int(state["round"]), int(state["round_end_epoch"])
+        self.rounds, self.finished = list(state["rounds"]), bool(state["finished"])
+        self.stopped_by, self.elbow = state["stopped_by"], state["elbow"]
+        self.seconds = dict(state["seconds"])
+        self.store_len = state["store_len"]
+        self.dm.batch_size = int(state["batch_size"])
+        self.acquire.load_state_dict(state["acquire"])
+
+    # ---------------------------------------------------------------- hooks
+    def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if self.store_len is not None and len(self.dm) != self.store_len:
+            # rows appended after the last checkpoint (the run died while acquiring) are dropped
+            self.dm.store.truncate(self.store_len)
+            self.dm.refresh()
+        if self.store_len is None:
+            self.store_len = len(self.dm)
+            self.dm.batch_size = self.schedule().batch_size
+            pl_module.set_lr(self.schedule().lr)
+
+    def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._epoch_t0 = time.perf_counter()
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self.seconds["train"] += time.perf_counter() - self._epoch_t0
+        if trainer.current_epoch >= self.round_end_epoch:
+            self._finish_round(trainer, pl_module)
+
+    def _finish_round(self, trainer: L.Trainer, pl_module) -> None:
+        metrics = self.evaluate(pl_module)
+        rows = self.dm.store.read()
+        record = {"round": self.round, "dataset_size": len(self.dm), **metrics,
+                  "label_seconds": self.seconds["label"], "train_seconds": self.seconds["train"],
+                  "project_seconds": self.seconds["project"],
+                  "n_projected_total": int((rows.origin == 1).sum()),
+                  "subset_counts": np.bincount(rows.subset, minlength=3).tolist()}
+        self.rounds.append(record)
+        if self.on_round is not None:  # recorded before the (long) acquisition, so a crash there keeps it
+            self.on_round(self.rounds, False)
+        sizes = [r["dataset_size"] for r in self.rounds]
+        acc = [r["accuracy"] for r in self.rounds]
+        stop, self.elbow = should_stop(sizes, acc, self.elbow_min_points, self.elbow_sensitivity)
+        if self.round >= self.max_rounds or (self.stop_at_elbow and stop):
+            self.finished = True
+            self.stopped_by = "elbow" if self.round < self.max_rounds else "max_rounds"
+            trainer.should_stop = True
+        else:
+            new = self.acquire(self.round + 1, pl_module.net, self.dm.store, self.n_aug)
+            self.dm.append(new.z, new.pd, new.pd_sub, new.collides, new.subset, self.round + 1, new.origin)
+            self.seconds["label"] += new.label_seconds
+            self.seconds["project"] += new.project_seconds
+            record["next_round_acquisition"] = new.info
+            self.round += 1
+            sched = self.update
+            if sched.reinit:
+                pl_module.reinitialize(self.seed * 1000 + self.round)
+            pl_module.set_lr(sched.lr)
+            self.dm.batch_size = sched.batch_size
+            self.round_end_epoch = trainer.current_epoch + sched.epochs
+            self.store_len = len(self.dm)
+        if self.on_round is not None:
+            self.on_round(self.rounds, self.finished, echo=False)
+        trainer.save_checkpoint(self.checkpoint_path, weights_only=False)

@@ -1,0 +1,31 @@
+"""When to stop adding data: the elbow of accuracy vs data set size (paper sec. 5, Kneedle)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+
+def accuracy_elbow(sizes, accuracies, sensitivity: float = 1.0) -> float | None:
+    """The data set size at the elbow of the (increasing, concave) accuracy curve, by Kneedle
+    (Satopaa et al. 2011, the ``kneed`` package), or None if the curve has none (yet)."""
+    x = np.asarray(sizes, float)
+    y = np.asarray(accuracies, float)
+    if len(x) < 3 or not np.isfinite(y).all() or np.ptp(y) == 0:
+        return None
+    from kneed import KneeLocator
+
+    with warnings.catch_warnings():  # kneed warns when no knee is found; None says the same
+        warnings.simplefilter("ignore")
+        knee = KneeLocator(x, y, S=sensitivity, curve="concave", direction="increasing").knee
+    return None if knee is None else float(knee)
+
+
+def should_stop(sizes, accuracies, min_points: int, sensitivity: float = 1.0) -> tuple[bool, float | None]:
+    """Stop once at least ``min_points`` rounds are measured and the curve has an elbow before its last point
+    (the rounds after the elbow added little). Returns (stop, elbow size or None)."""
+    if len(sizes) < max(3, min_points):
+        return False, None
+    knee = accuracy_elbow(sizes, accuracies, sensitivity)
+    return (knee is not None and knee < float(sizes[-1])), knee

@@ -1,0 +1,112 @@
+"""D_c as a LightningDataModule: an append-only HDF5 store served as in-memory tensors.
+
+The module owns the store (:class:`~neuralcol.data.collision_store.CollisionStore`): rows are appended
+between training epochs (:meth:`CollisionDataModule.append`), the tensors are re-read, and the trainer picks
+the new data up at the next epoch (``reload_dataloaders_every_n_epochs=1``). The train/validation split is
+the store's id-based 80/20 split, so it stays stable as D_c grows.
+
+Targets handed to the model: ``z`` (B, D), ``pd`` (B,) and ``pd_sub`` (B, K) in units of ``pd_unit`` (the
+labeler's clearance cap, so collision-free depths lie in [-1, 0]) clipped above at ``pd_clip``, and the
+subset code (B,) (0 D_p, 1 D_n, 2 D_b). With ``use_boundary_set=False`` (the ``supv`` baseline) there is no
+D_b: colliding rows are D_p and the others D_n.
+"""
+
+from __future__ import annotations
+
+import os
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, TensorDataset
+
+from neuralcol.collision.labeler import SUBSET_NEGATIVE, SUBSET_POSITIVE
+from neuralcol.data.collision_store import CollisionRows, CollisionStore
+
+
+def detector_targets(rows: CollisionRows, pd_unit: float, pd_clip: float,
+                     use_boundary_set: bool = True) -> tuple[torch.Tensor, ...]:
+    """Rows -> (z (B, D) float32, pd (B,), pd_sub (B, K), subset (B,) long) tensors (see the module doc)."""
+    if pd_unit <= 0 or pd_clip <= 0:
+        raise ValueError(f"pd_unit={pd_unit} and pd_clip={pd_clip} must be > 0")
+    pd = np.minimum(np.asarray(rows.pd, np.float64) / pd_unit, pd_clip)
+    pd_sub = np.minimum(np.asarray(rows.pd_sub, np.float64) / pd_unit, pd_clip)
+    subset = np.asarray(rows.subset, np.int64)
+    if not use_boundary_set:
+        subset = np.where(np.asarray(rows.collides, bool), SUBSET_POSITIVE, SUBSET_NEGATIVE)
+    return (torch.as_tensor(np.asarray(rows.z, np.float32)), torch.as_tensor(pd, dtype=torch.float32),
+            torch.as_tensor(pd_sub, dtype=torch.float32), torch.as_tensor(subset, dtype=torch.long))
+
+
+class CollisionDataModule(L.LightningDataModule):
+    """D_c for the detector.
+
+    Args:
+        path: HDF5 file of D_c (created if missing; an existing one is continued).
+        latent_dim: D = |Z_all|.
+        n_parts: K = |Z_0|.
+        batch_size: training batch size (may be changed between epochs, e.g. 512 -> 1024 when fine-tuning).
+        pd_unit: length that PD targets are divided by (> 0).
+        pd_clip: upper clip of the scaled PD targets.
+        use_boundary_set: keep D_b (``supv_bd``, ``active``) or fold it into D_p (``supv``).
+        seed: shuffling seed (the order of epoch e depends on ``(seed, e)`` only, so resumed runs replay it).
+    """
+
+    def __init__(self, path: str | os.PathLike, latent_dim: int, n_parts: int, batch_size: int, pd_unit: float,
+                 pd_clip: float, use_boundary_set: bool = True, seed: int = 0, val_batch_size: int = 8192):
+        super().__init__()
+        if batch_size < 1:
+            raise ValueError(f"batch_size={batch_size} must be >= 1")
+        self.store = CollisionStore(path, latent_dim, n_parts)
+        self.batch_size = int(batch_size)
+        self.val_batch_size = int(val_batch_size)
+        self.pd_unit = float(pd_unit)
+        self.pd_clip = float(pd_clip)
+        self.use_boundary_set = bool(use_boundary_set)
+        self.seed = int(seed)
+        self._train: tuple[torch.Tensor, ...] | None = None
+        self._val: tuple[torch.Tensor, ...] | None = None
+
+    def __len__(self) -> int:
+        return len(self.store)
+
+    def append(self, z, pd, pd_sub, collides, subset, round_: int, origin) -> np.ndarray:
+        """Append labeled rows to D_c (crash-safe) and reload the tensors; returns the new row ids."""
+        ids = self.store.append(z, pd, pd_sub, collides, subset, round_, origin)
+        self.refresh()
+        return ids
+
+    def refresh(self) -> None:
+        """Re-read the committed rows into the train and validation tensors."""
+        rows = self.store.read()
+        val = self.store.split_mask()
+        tensors = detector_targets(rows, self.pd_unit, self.pd_clip, self.use_boundary_set)
+        self._train = tuple(t[torch.as_tensor(~val)] for t in tensors)
+        self._val = tuple(t[torch.as_tensor(val)] for t in tensors)
+
+    def setup(self, stage: str | None = None) -> None:
+        self.refresh()
+
+    @property
+    def n_train(self) -> int:
+        return 0 if self._train is None else len(self._train[0])
+
+    def train_dataloader(self) -> DataLoader:
+        if self._train is None:
+            self.refresh()
+        if self.n_train == 0:
+            raise RuntimeError(f"{self.store.path}: D_c has no training rows yet")
+        epoch = self.trainer.current_epoch if self.trainer is not None else 0
+        gen = torch.Generator().manual_seed(self.seed * 1_000_003 + epoch)
+        return DataLoader(TensorDataset(*self._train), batch_size=self.batch_size, shuffle=True, generator=gen)
+
+    def val_dataloader(self) -> DataLoader:
+        if self._val is None:
+            self.refresh()
+        return DataLoader(TensorDataset(*self._val), batch_size=self.val_batch_size)
+
+    def teardown(self, stage: str | None = None) -> None:
+        pass
+
+    def close(self) -> None:
+        self.store.close()

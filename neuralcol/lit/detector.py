@@ -1,0 +1,81 @@
+"""Thin LightningModule training the neural collision detector with the loss of paper sec. 4.3."""
+
+from __future__ import annotations
+
+import lightning as L
+import torch
+
+from neuralcol.nn.detector import CollisionDetector, detector_losses
+
+
+class DetectorLitModule(L.LightningModule):
+    """Trains a :class:`~neuralcol.nn.detector.CollisionDetector` on batches ``(z, pd, pd_sub, subset)``.
+
+    Args:
+        net: the detector.
+        lr: Adam learning rate (changed between rounds with :meth:`set_lr`).
+        w_pd, w_pdsum, w_r, w_ce, w_b: loss weights (paper: 5, 0.2, 2, 2, 0.5; ``supv`` uses w_b = 0).
+        margin: ranking margin alpha (in PD target units).
+        temperature: smooth-max temperature of the aggregated depth (PD target units).
+    """
+
+    def __init__(self, net: CollisionDetector, lr: float, w_pd: float, w_pdsum: float, w_r: float, w_ce: float,
+                 w_b: float, margin: float, temperature: float):
+        super().__init__()
+        self.save_hyperparameters(ignore=["net"])
+        self.net = net
+        self.lr = float(lr)
+        self.loss_kwargs = dict(w_pd=w_pd, w_pdsum=w_pdsum, w_r=w_r, w_ce=w_ce, w_b=w_b, margin=margin,
+                                temperature=temperature)
+
+    def forward(self, z: torch.Tensor):
+        return self.net(z)
+
+    def _step(self, batch, split: str) -> torch.Tensor:
+        z, pd, pd_sub, subset = batch
+        out = self.net(z)
+        losses = detector_losses(out, pd, pd_sub, subset, **self.loss_kwargs)
+        acc = ((out.logit > 0) == (pd > 0)).float().mean()
+        bs = len(z)
+        self.log_dict({f"{split}/loss": losses.total, f"{split}/loss_pd": losses.pd, f"{split}/loss_rank": losses.rank,
+                       f"{split}/loss_ce": losses.ce, f"{split}/loss_b": losses.boundary, f"{split}/accuracy": acc},
+                      on_step=False, on_epoch=True, batch_size=bs)
+        return losses.total
+
+    def training_step(self, batch, batch_idx):
+        return self._step(batch, "train")
+
+    def validation_step(self, batch, batch_idx):
+        self._step(batch, "val")
+
+    def configure_optimizers(self):
+        return torch.optim.Adam(self.net.parameters(), lr=self.lr)
+
+    def set_lr(self, lr: float) -> None:
+        """Set the learning rate of the running optimizer (and of the next one configured)."""
+        self.lr = float(lr)
+        if self._trainer is not None:
+            for opt in self.trainer.optimizers:
+                for group in opt.param_groups:
+                    group["lr"] = self.lr
+
+    def reinitialize(self, seed: int) -> None:
+        """Fresh weights (seeded) and a fresh optimizer state: training from scratch inside a running fit."""
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            for m in self.net.modules():
+                if hasattr(m, "reset_parameters"):
+                    m.reset_parameters()
+        if self._trainer is not None:
+            for opt in self.trainer.optimizers:
+                opt.state.clear()
+
+    @torch.no_grad()
+    def predict_logits(self, z: torch.Tensor, batch: int = 65536) -> torch.Tensor:
+        """Logits of many codes (B,), evaluated in batches on the module's device, returned on the CPU."""
+        was_training = self.net.training
+        self.net.eval()
+        dev = next(self.net.parameters()).device
+        out = torch.cat([self.net(c.to(dev)).logit.cpu() for c in z.split(batch)]) if len(z) else torch.zeros(0)
+        self.net.train(was_training)
+        return out

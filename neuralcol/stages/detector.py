@@ -1,0 +1,164 @@
+"""Stage: train the neural collision detector with one method (``supv``, ``supv_bd``, ``active``).
+
+Inputs: the latent space and an exact oracle. Shared caches under ``<cache_dir>/collision/<key>/`` (key =
+latent space + labeler settings): the test set of uniform samples (one for every method and seed) and each
+seed's pool of labeled uniform samples. Per run, in the run directory: ``dc.h5`` (D_c),
+``checkpoints/detector.ckpt`` (the training state after the last finished round, for resuming),
+``detector_rounds.json`` (the round records, rewritten after every round) and ``detector.pt`` (the final
+detector). See ``docs/detector.md``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from neuralcol.active.acquisition import ProjectedAcquisition, UniformAcquisition
+from neuralcol.active.oracle import LatentOracle
+from neuralcol.active.rounds import DataRounds, Schedule, write_json_atomic
+from neuralcol.data.collision_datamodule import CollisionDataModule
+from neuralcol.data.collision_store import CollisionRows
+from neuralcol.data.uniform_samples import labeled_uniform_rows
+from neuralcol.lit.detector import DetectorLitModule
+from neuralcol.metrics.detection import detection_metrics
+from neuralcol.nn.detector import CollisionDetector
+
+METHODS = ("supv", "supv_bd", "active")
+
+
+def _as_dict(cfg) -> dict:
+    return OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
+
+
+def samples_cache_dir(cache_dir: str | Path, latent_key: str, labeler) -> Path:
+    """``<cache>/collision/<key>``: key of the latent space and of the labeler's settings."""
+    settings = {"latent": latent_key, "eps": float(labeler.eps), "cap": float(labeler.cap),
+                "tau": float(labeler.tau), "n_parts": int(labeler.n_parts)}
+    key = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
+    return Path(cache_dir) / "collision" / key
+
+
+def build_detector(space, det: dict) -> CollisionDetector:
+    l2 = (space.dim - space.n_parts) // space.n_parts
+    return CollisionDetector(space.n_parts, l2, state_dim=int(det["net"]["state_dim"]),
+                             hidden=int(det["net"]["hidden"]))
+
+
+def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, pd_unit: float) -> None:
+    blob = {"state": net.state_dict(), "n_components": net.n_components, "level2_dim": net.level2_dim,
+            "net": det["net"], "method": method["name"], "pd_unit": pd_unit}
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(blob, tmp)
+    tmp.replace(path)
+
+
+def load_detector(path: str | Path, map_location="cpu") -> tuple[CollisionDetector, dict]:
+    """The final detector of a run (``detector.pt``) and its metadata."""
+    blob = torch.load(path, map_location=map_location, weights_only=False)
+    net = CollisionDetector(blob["n_components"], blob["level2_dim"], state_dim=int(blob["net"]["state_dim"]),
+                            hidden=int(blob["net"]["hidden"]))
+    net.load_state_dict(blob["state"])
+    return net, {k: v for k, v in blob.items() if k != "state"}
+
+
+def evaluate_on_test(module: DetectorLitModule, test: CollisionRows) -> dict:
+    """Accuracy, FNR, FPR, ... of the detector (logit > 0 = collides) on the test rows."""
+    logits = module.predict_logits(torch.as_tensor(test.z))
+    return detection_metrics(logits.numpy() > 0, np.asarray(test.collides, bool))
+
+
+def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key: str, seed: int,
+                   cache_dir: str | Path, run_dir: str | Path, logger=None) -> dict:
+    """Run one method end to end (or resume it); returns ``{"rounds": [...], "detector": {...}}``."""
+    det, method = _as_dict(det_cfg), _as_dict(method_cfg)
+    name = method["name"]
+    if name not in METHODS:
+        raise ValueError(f"method.name={name!r}; use one of {METHODS}")
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    rounds_path = run_dir / "detector_rounds.json"
+    if rounds_path.is_file():
+        done = json.loads(rounds_path.read_text())
+        if done.get("finished"):
+            return {"rounds": done["rounds"], "detector": {**done["summary"], "resumed": "already finished"}}
+    labeler = oracle.pool.labeler
+    shared = samples_cache_dir(cache_dir, latent_key, labeler)
+    # 1. the fixed test set (shared by every method and seed)
+    t0 = time.perf_counter()
+    test, test_label_s, test_labeled = labeled_uniform_rows(shared / f"test_s{det['test_seed']}.h5", oracle,
+                                                            int(det["test_size"]), int(det["test_seed"]),
+                                                            desc="labeling the test set")
+    test_s = time.perf_counter() - t0
+    # 2. D_c, the acquisition and the rounds
+    pd_unit = float(labeler.cap)
+    dm = CollisionDataModule(run_dir / "dc.h5", space.dim, space.n_parts, int(det["batch_size"]), pd_unit,
+                             float(det["targets"]["pd_clip"]), use_boundary_set=bool(method["use_boundary_set"]),
+                             seed=seed)
+    pool_path = shared / f"uniform_s{seed}.h5"
+    if method["acquisition"] == "projected":
+        acquire = ProjectedAcquisition(pool_path, oracle, seed, space.box_lo, space.box_hi,
+                                       float(method["projected_fraction"]), det["newton"])
+    elif method["acquisition"] == "uniform":
+        acquire = UniformAcquisition(pool_path, oracle, seed)
+    else:
+        raise ValueError(f"method.acquisition={method['acquisition']!r}; use 'uniform' or 'projected'")
+    ckpt = run_dir / "checkpoints" / "detector.ckpt"
+    resuming = ckpt.is_file()
+    if not resuming and len(dm) > 0:
+        dm.store.truncate(0)  # an earlier attempt died before its first checkpoint
+    sched = {k: Schedule(**method[k]) for k in ("bootstrap", "update")}
+
+    def on_round(rounds: list[dict], finished: bool, echo: bool = True) -> None:
+        last = rounds[-1]
+        write_json_atomic(rounds_path, {"finished": finished, "rounds": rounds, "summary": summary()})
+        if not echo:
+            return
+        if logger is not None:
+            for key in ("accuracy", "fnr", "fpr", "balanced_accuracy", "base_rate"):
+                logger.experiment.add_scalar(f"test/{key}", last[key], global_step=last["dataset_size"])
+        print(f"[{name}] round {last['round']}: |D_c| = {last['dataset_size']}, test accuracy "
+              f"{last['accuracy']:.4f}, FNR {last['fnr']:.4f}, FPR {last['fpr']:.4f} (base rate "
+              f"{last['base_rate']:.3f}); labeling {last['label_seconds']:.0f} s, training "
+              f"{last['train_seconds']:.0f} s", flush=True)
+
+    rounds_cb = DataRounds(dm, acquire, lambda m: evaluate_on_test(m, test), sched["bootstrap"], sched["update"],
+                           int(det["n_aug"]), int(det["max_rounds"]), bool(det["stop"]["kneedle"]),
+                           int(det["stop"]["min_points"]), float(det["stop"]["sensitivity"]), ckpt, seed,
+                           on_round=on_round)
+
+    def summary() -> dict:
+        return {"method": name, "stopped_by": rounds_cb.stopped_by, "elbow_dataset_size": rounds_cb.elbow,
+                "test_set": {"n": len(test.z), "seed": int(det["test_seed"]),
+                             "base_rate": float(np.mean(test.collides)), "labeled_now": test_labeled,
+                             "label_seconds": test_label_s, "seconds": test_s},
+                "pd_unit": pd_unit}
+
+    L.seed_everything(seed, workers=False, verbose=False)
+    net = build_detector(space, det)
+    l_cfg = det["loss"]
+    module = DetectorLitModule(net, lr=sched["bootstrap"].lr, w_pd=l_cfg["w_pd"], w_pdsum=l_cfg["w_pdsum"],
+                               w_r=l_cfg["w_r"], w_ce=l_cfg["w_ce"], w_b=float(method["w_b"]),
+                               margin=l_cfg["margin"], temperature=l_cfg["temperature"])
+    if not resuming:  # bootstrap: N_init uniform samples (round 0)
+        boot = acquire.take(int(det["n_init"]))
+        dm.append(boot.z, boot.pd, boot.pd_sub, boot.collides, boot.subset, 0, boot.origin)
+        rounds_cb.add_label_seconds(boot.label_seconds)
+    trainer = L.Trainer(max_epochs=rounds_cb.max_epochs, logger=logger if logger is not None else False,
+                        callbacks=[rounds_cb], reload_dataloaders_every_n_epochs=1, enable_checkpointing=False,
+                        check_val_every_n_epoch=int(det["val_every"]), num_sanity_val_steps=0,
+                        enable_progress_bar=bool(det["progress_bar"]), enable_model_summary=False,
+                        accelerator=det["accelerator"], devices=1, log_every_n_steps=1)
+    trainer.fit(module, datamodule=dm, ckpt_path=str(ckpt) if resuming else None)
+    save_detector(run_dir / "detector.pt", module.net.cpu(), det, method, pd_unit)
+    out = {"rounds": rounds_cb.rounds, "detector": {**summary(), "resumed": resuming}}
+    write_json_atomic(rounds_path, {"finished": rounds_cb.finished, "rounds": rounds_cb.rounds,
+                                    "summary": out["detector"]})
+    dm.close()
+    return out
