@@ -57,13 +57,13 @@ class BallOracle:
 
 
 def _det_cfg(**over):
-    cfg = {"net": {"state_dim": 16, "hidden": 32},
+    cfg = {"net": {"state_dim": 16, "hidden": 32, "normalize_inputs": True},
            "loss": {"w_pd": 5.0, "w_pdsum": 0.2, "w_r": 2.0, "w_ce": 2.0, "margin": 0.01, "temperature": 0.1},
            "targets": {"pd_clip": 3.0}, "n_init": 200, "n_aug": 100, "max_rounds": 2,
            "stop": {"kneedle": False, "min_points": 5, "sensitivity": 1.0}, "test_size": 500, "test_seed": 99,
            "epochs": 40, "lr": 1e-2, "batch_size": 64, "finetune_epochs": 10, "finetune_lr": 3e-3,
            "finetune_batch_size": 64, "newton": {"eps_z": 1e-7, "max_iter": 30, "damping": 1e-6, "max_step": 0.25},
-           "val_every": 5, "accelerator": "cpu", "progress_bar": False}
+           "val_every": 1, "select_best_val": True, "accelerator": "cpu", "progress_bar": False}
     cfg.update(over)
     return cfg
 

@@ -61,13 +61,15 @@ class DataRounds(L.Callback):
         elbow_min_points, elbow_sensitivity: Kneedle settings.
         checkpoint_path: where each finished round saves the training state.
         seed: seeds re-initialisation in the baselines' rounds.
+        select_best_val: at the end of a round, restore the weights of the round's epoch with the best
+            validation accuracy (model selection on the 20 % validation split of D_c) before testing.
         on_round: called with the list of round records after each round (metrics.json, TensorBoard).
     """
 
     def __init__(self, datamodule: CollisionDataModule, acquire: UniformAcquisition, evaluate: Callable,
                  bootstrap: Schedule, update: Schedule, n_aug: int, max_rounds: int, stop_at_elbow: bool,
                  elbow_min_points: int, elbow_sensitivity: float, checkpoint_path: str | Path, seed: int,
-                 on_round: Callable[..., None] | None = None):
+                 select_best_val: bool = True, on_round: Callable[..., None] | None = None):
         if n_aug < 1 or max_rounds < 0:
             raise ValueError(f"n_aug={n_aug} must be >= 1 and max_rounds={max_rounds} >= 0")
         self.dm = datamodule
@@ -80,6 +82,8 @@ class DataRounds(L.Callback):
         self.checkpoint_path = Path(checkpoint_path)
         self.seed = int(seed)
         self.on_round = on_round
+        self.select_best_val = bool(select_best_val)
+        self._best: tuple[float, int, dict] | None = None  # (val accuracy, epoch, weights) of this round
         # state saved with checkpoints
         self.round = 0
         self.round_end_epoch = bootstrap.epochs - 1
@@ -136,15 +140,33 @@ class DataRounds(L.Callback):
     def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._epoch_t0 = time.perf_counter()
 
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        acc = trainer.callback_metrics.get("val/accuracy")
+        first_epoch = self.round_end_epoch - self.schedule().epochs + 1
+        # (a resumed fit re-validates the checkpoint's epoch, which belongs to the previous round: skipped)
+        if trainer.sanity_checking or acc is None or not self.select_best_val or trainer.current_epoch < first_epoch:
+            return
+        acc = float(acc)
+        if self._best is None or acc > self._best[0]:
+            state = {k: v.detach().clone() for k, v in pl_module.net.state_dict().items()}
+            self._best = (acc, trainer.current_epoch, state)
+
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self.seconds["train"] += time.perf_counter() - self._epoch_t0
         if trainer.current_epoch >= self.round_end_epoch:
             self._finish_round(trainer, pl_module)
 
     def _finish_round(self, trainer: L.Trainer, pl_module) -> None:
+        selected = {}
+        if self._best is not None:
+            val_acc, epoch, state = self._best
+            pl_module.net.load_state_dict(state)
+            first_epoch = self.round_end_epoch - self.schedule().epochs + 1
+            selected = {"val_accuracy": val_acc, "selected_epoch": epoch - first_epoch}
+            self._best = None
         metrics = self.evaluate(pl_module)
         rows = self.dm.store.read()
-        record = {"round": self.round, "dataset_size": len(self.dm), **metrics,
+        record = {"round": self.round, "dataset_size": len(self.dm), **metrics, **selected,
                   "label_seconds": self.seconds["label"], "train_seconds": self.seconds["train"],
                   "project_seconds": self.seconds["project"],
                   "n_projected_total": int((rows.origin == 1).sum()),

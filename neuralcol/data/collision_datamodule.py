@@ -18,7 +18,7 @@ import os
 import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, TensorDataset
+from torch.utils.data import DataLoader, Sampler, TensorDataset
 
 from neuralcol.collision.labeler import SUBSET_NEGATIVE, SUBSET_POSITIVE
 from neuralcol.data.collision_store import CollisionRows, CollisionStore
@@ -36,6 +36,21 @@ def detector_targets(rows: CollisionRows, pd_unit: float, pd_clip: float,
         subset = np.where(np.asarray(rows.collides, bool), SUBSET_POSITIVE, SUBSET_NEGATIVE)
     return (torch.as_tensor(np.asarray(rows.z, np.float32)), torch.as_tensor(pd, dtype=torch.float32),
             torch.as_tensor(pd_sub, dtype=torch.float32), torch.as_tensor(subset, dtype=torch.long))
+
+
+class EpochShuffle(Sampler[int]):
+    """Random order of ``n`` rows drawn from ``(seed, epoch())`` when iteration starts, so the order of an epoch
+    does not depend on when the loader was built (a resumed fit builds it before its first epoch starts)."""
+
+    def __init__(self, n: int, seed: int, epoch):
+        self.n, self.seed, self.epoch = int(n), int(seed), epoch
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __iter__(self):
+        gen = torch.Generator().manual_seed(self.seed * 1_000_003 + int(self.epoch()))
+        return iter(torch.randperm(self.n, generator=gen).tolist())
 
 
 class CollisionDataModule(L.LightningDataModule):
@@ -96,9 +111,9 @@ class CollisionDataModule(L.LightningDataModule):
             self.refresh()
         if self.n_train == 0:
             raise RuntimeError(f"{self.store.path}: D_c has no training rows yet")
-        epoch = self.trainer.current_epoch if self.trainer is not None else 0
-        gen = torch.Generator().manual_seed(self.seed * 1_000_003 + epoch)
-        return DataLoader(TensorDataset(*self._train), batch_size=self.batch_size, shuffle=True, generator=gen)
+        sampler = EpochShuffle(self.n_train, self.seed,
+                               lambda: self.trainer.current_epoch if self.trainer is not None else 0)
+        return DataLoader(TensorDataset(*self._train), batch_size=self.batch_size, sampler=sampler)
 
     def val_dataloader(self) -> DataLoader:
         if self._val is None:

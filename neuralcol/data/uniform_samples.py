@@ -71,7 +71,7 @@ def labeled_uniform_rows(path: str | os.PathLike, oracle: LatentOracle, n: int, 
         have = len(store)
         for a in range(have, n, LABEL_CHUNK):
             b = min(n, a + LABEL_CHUNK)
-            lab = oracle(uniform_codes(space, seed, a, b), desc=f"{desc} {b}/{n}")
+            lab = oracle(uniform_codes(space, seed, a, b), desc=f"{desc} [rows {a}:{b} of {n}]")
             store.append(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset, 0, ORIGIN_UNIFORM)
             seconds += lab.seconds
             labeled += b - a

@@ -42,13 +42,28 @@ class CollisionDetector(nn.Module):
         level2_dim: d (0 if the latent space has no level 2).
         state_dim: width of S_0.
         hidden: hidden width of CSE, CP and MLP_c.
+        box_lo, box_hi: (D,) the latent box Z. Codes are mapped affinely from the box to [-1, 1] before CSE
+            and CP (the raw level-1 codes span hundreds of units, the level-2 ones tens; unscaled inputs
+            train measurably worse, see docs/detector.md). The map is part of the network (saved buffers),
+            so gradients w.r.t. the raw codes, used by the projector and the handler, include it.
     """
 
-    def __init__(self, n_components: int, level2_dim: int, state_dim: int = 64, hidden: int = 128):
+    def __init__(self, n_components: int, level2_dim: int, state_dim: int = 64, hidden: int = 128,
+                 box_lo: torch.Tensor | None = None, box_hi: torch.Tensor | None = None):
         super().__init__()
         self.n_components = n_components
         self.level2_dim = level2_dim
         latent_dim = n_components * (1 + level2_dim)
+        center, half = torch.zeros(latent_dim), torch.ones(latent_dim)
+        if (box_lo is None) != (box_hi is None):
+            raise ValueError("give both box_lo and box_hi, or neither")
+        if box_lo is not None:
+            lo, hi = torch.as_tensor(box_lo, dtype=torch.float32), torch.as_tensor(box_hi, dtype=torch.float32)
+            if lo.shape != (latent_dim,) or hi.shape != (latent_dim,) or not bool((hi > lo).all()):
+                raise ValueError(f"box_lo/box_hi must be ({latent_dim},) with box_hi > box_lo")
+            center, half = (lo + hi) / 2, (hi - lo) / 2
+        self.register_buffer("center", center)
+        self.register_buffer("half_range", half)
         self.cse = nn.Sequential(_mlp([latent_dim, hidden, state_dim], nn.CELU), nn.Tanh())
         self.cp = _mlp([state_dim + 1 + level2_dim, hidden, hidden, 1], nn.CELU)
         self.mlp_c = _mlp([n_components, hidden, 1], nn.CELU)
@@ -69,8 +84,9 @@ class CollisionDetector(nn.Module):
         """Z_all (B, D) -> DetectorOutput."""
         if z_all.ndim != 2 or z_all.shape[1] != self.latent_dim:
             raise ValueError(f"z_all has shape {tuple(z_all.shape)}, expected (B, {self.latent_dim})")
-        s0 = self.cse(z_all)  # (B, S)
-        parts = self.split(z_all)  # (B, K, 1 + d)
+        x = (z_all - self.center) / self.half_range  # the box -> [-1, 1]
+        s0 = self.cse(x)  # (B, S)
+        parts = self.split(x)  # (B, K, 1 + d)
         cp_in = torch.cat([s0[:, None, :].expand(-1, self.n_components, -1), parts], dim=-1)
         s = self.cp(cp_in)[..., 0]  # (B, K)
         logit = self.mlp_c(s)[:, 0]

@@ -47,8 +47,10 @@ def samples_cache_dir(cache_dir: str | Path, latent_key: str, labeler) -> Path:
 
 def build_detector(space, det: dict) -> CollisionDetector:
     l2 = (space.dim - space.n_parts) // space.n_parts
+    box = (space.box_lo.detach().cpu(), space.box_hi.detach().cpu()) if det["net"]["normalize_inputs"] \
+        else (None, None)
     return CollisionDetector(space.n_parts, l2, state_dim=int(det["net"]["state_dim"]),
-                             hidden=int(det["net"]["hidden"]))
+                             hidden=int(det["net"]["hidden"]), box_lo=box[0], box_hi=box[1])
 
 
 def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, pd_unit: float) -> None:
@@ -131,7 +133,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     rounds_cb = DataRounds(dm, acquire, lambda m: evaluate_on_test(m, test), sched["bootstrap"], sched["update"],
                            int(det["n_aug"]), int(det["max_rounds"]), bool(det["stop"]["kneedle"]),
                            int(det["stop"]["min_points"]), float(det["stop"]["sensitivity"]), ckpt, seed,
-                           on_round=on_round)
+                           select_best_val=bool(det["select_best_val"]), on_round=on_round)
 
     def summary() -> dict:
         return {"method": name, "stopped_by": rounds_cb.stopped_by, "elbow_dataset_size": rounds_cb.elbow,
