@@ -42,7 +42,11 @@ def samples_cache_dir(cache_dir: str | Path, latent_key: str, labeler) -> Path:
     settings = {"latent": latent_key, "eps": float(labeler.eps), "cap": float(labeler.cap),
                 "tau": float(labeler.tau), "n_parts": int(labeler.n_parts)}
     key = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
-    return Path(cache_dir) / "collision" / key
+    folder = Path(cache_dir) / "collision" / key
+    folder.mkdir(parents=True, exist_ok=True)
+    if not (folder / "labeler.json").is_file():
+        write_json_atomic(folder / "labeler.json", settings)
+    return folder
 
 
 def build_detector(space, det: dict) -> CollisionDetector:
