@@ -83,3 +83,39 @@ def icosphere():
 
     m = trimesh.creation.icosphere(subdivisions=1)
     return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+
+
+@pytest.fixture(scope="session")
+def tube_dataset():
+    """Bent and twisted tubes: 12 meshes, 2 natural parts."""
+    from neuralcol.data.datasets import MeshDataset
+
+    rest, faces = make_tube(n_rings=14, n_around=8)
+    meshes = []
+    for a in np.linspace(0, 1.0, 12):
+        v = twist(rest, 0.8 * a)
+        bend = 0.4 * a * (v[:, 2] / 2.0) ** 2  # bend the upper half sideways
+        v = v + np.stack([bend, np.zeros_like(bend), np.zeros_like(bend)], -1)
+        meshes.append(v)
+    verts = torch.as_tensor(np.stack(meshes), dtype=torch.float32)
+    return MeshDataset(verts, torch.as_tensor(faces), [str(i) for i in range(12)])
+
+
+TUBE_LATENT = {"n_components": 2, "level2_dim": 2}
+
+
+@pytest.fixture(scope="session")
+def tube_space(tube_dataset, tmp_path_factory):
+    """A small trained latent space of the tubes: (space, report, features, config, cache dir)."""
+    from omegaconf import OmegaConf
+
+    from neuralcol.data.features import dataset_features
+    from neuralcol.stages.autoencoder import train_or_load_latent_space
+
+    feats = dataset_features(tube_dataset, 0)
+    tiny = OmegaConf.load(ROOT / "conf" / "autoencoder" / "tiny.yaml")
+    cfg = OmegaConf.merge(tiny, {"level1": {"epochs": 150}, "level2": {"epochs": 100}, "val_fraction": 0.25})
+    cache = tmp_path_factory.mktemp("ae_cache")
+    space, report, cached = train_or_load_latent_space(tube_dataset, feats, cfg, TUBE_LATENT, 0, cache)
+    assert not cached
+    return space, report, feats, cfg, cache

@@ -3,13 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 import torch
-from conftest import ROOT, make_tube, twist
+from conftest import TUBE_LATENT as LATENT
 from omegaconf import OmegaConf
 
-from neuralcol.data.datasets import MeshDataset
-from neuralcol.data.features import dataset_features
 from neuralcol.geometry.topology import edge_topology
 from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder, Level2Autoencoders
 from neuralcol.nn.latent_space import LatentSpace
@@ -19,33 +16,6 @@ from neuralcol.stages.autoencoder import (
     split_indices,
     train_or_load_latent_space,
 )
-
-TINY = OmegaConf.load(ROOT / "conf" / "autoencoder" / "tiny.yaml")
-LATENT = {"n_components": 2, "level2_dim": 2}
-
-
-@pytest.fixture(scope="module")
-def tube_dataset():
-    """Bent and twisted tubes: 12 meshes, 2 natural parts."""
-    rest, faces = make_tube(n_rings=14, n_around=8)
-    meshes = []
-    for a in np.linspace(0, 1.0, 12):
-        v = twist(rest, 0.8 * a)
-        bend = 0.4 * a * (v[:, 2] / 2.0) ** 2  # bend the upper half sideways
-        v = v + np.stack([bend, np.zeros_like(bend), np.zeros_like(bend)], -1)
-        meshes.append(v)
-    verts = torch.as_tensor(np.stack(meshes), dtype=torch.float32)
-    return MeshDataset(verts, torch.as_tensor(faces), [str(i) for i in range(12)])
-
-
-@pytest.fixture(scope="module")
-def tube_space(tube_dataset, tmp_path_factory):
-    feats = dataset_features(tube_dataset, 0)
-    cfg = OmegaConf.merge(TINY, {"level1": {"epochs": 150}, "level2": {"epochs": 100}, "val_fraction": 0.25})
-    cache = tmp_path_factory.mktemp("ae_cache")
-    space, report, cached = train_or_load_latent_space(tube_dataset, feats, cfg, LATENT, 0, cache)
-    assert not cached
-    return space, report, feats, cfg, cache
 
 
 def test_shapes():

@@ -1,0 +1,131 @@
+"""Augmented-Lagrangian collision handler against analytic projections; objective gradients against finite
+differences; failures reported, not raised."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from neuralcol.handling.alm import ALMSettings, alm_resolve
+from neuralcol.handling.objectives import CartesianObjective, LatentObjective
+
+D = 6
+LO, HI = -3.0 * torch.ones(D, dtype=torch.float64), 3.0 * torch.ones(D, dtype=torch.float64)
+
+
+def _ball_logit(center, radius, k=4.0):
+    """'Collides' inside the ball: logit = k (r^2 - |z - c|^2)."""
+    return lambda z: k * (radius ** 2 - ((z - center) ** 2).sum(-1))
+
+
+@pytest.fixture(autouse=True)
+def _float64():
+    old = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float64)
+    yield
+    torch.set_default_dtype(old)
+
+
+def test_ball_constraint_gives_the_exact_projection():
+    gen = torch.Generator().manual_seed(0)
+    center, radius, k = torch.full((D,), 0.3), 1.5, 4.0
+    # inside the ball, away from its centre (where every direction is nearly as good: a non-convex tie)
+    z_user = center + radius * torch.nn.functional.normalize(torch.randn(64, D, generator=gen), dim=-1) \
+        * (0.2 + 0.7 * torch.rand(64, 1, generator=gen))
+    st = ALMSettings(margin=0.5, max_outer=30, tol=1e-7)
+    res = alm_resolve(LatentObjective(z_user), _ball_logit(center, radius, k), z_user, LO, HI, st)
+    # nearest point with logit = -margin: on the sphere of radius sqrt(r^2 + margin / k), same direction
+    r_target = (radius ** 2 + st.margin / k) ** 0.5
+    expected = center + r_target * torch.nn.functional.normalize(z_user - center, dim=-1)
+    torch.testing.assert_close(res.z, expected, atol=1e-5, rtol=0)
+    assert res.feasible.all() and res.finite.all() and res.converged.all()
+    torch.testing.assert_close(res.objective, 0.5 * ((expected - z_user) ** 2).sum(-1), atol=1e-4, rtol=0)
+
+
+def test_half_space_projection_and_feasible_inputs_stay():
+    a, b = torch.tensor([1.0, -2.0, 0.5, 0.0, 1.0, 0.3]), 0.7
+    logit = lambda z: z @ a - b  # noqa: E731  (collides where a.z > b)
+    z_user = torch.tensor([[1.0, 0.0, 0.0, 0.0, 1.0, 0.0],     # a.z = 2 > b: infeasible
+                           [-1.0, 1.0, 0.0, 0.0, 0.0, 0.0]])   # a.z = -3: feasible with margin
+    st = ALMSettings(margin=0.25, tol=1e-8)
+    res = alm_resolve(LatentObjective(z_user), logit, z_user, LO, HI, st)
+    t = (z_user[0] @ a - b + st.margin) / (a @ a)
+    torch.testing.assert_close(res.z[0], z_user[0] - t * a, atol=1e-6, rtol=0)
+    torch.testing.assert_close(res.z[1], z_user[1])
+    assert res.converged.all() and res.outer[1] == 1
+
+
+def test_box_limits_the_solution():
+    # the nearest feasible point lies outside the box: the handler stops at the box face, feasible
+    logit = lambda z: 2.5 - z[:, 0]  # noqa: E731  (feasible iff z_0 >= 2.5 + margin)
+    z_user = torch.zeros(1, D)
+    st = ALMSettings(margin=1.0, max_outer=15)
+    res = alm_resolve(LatentObjective(z_user), logit, z_user, LO, HI, st)
+    assert res.z[0, 0] <= 3.0 + 1e-9 and not res.feasible[0] and not res.converged[0]
+    assert res.z[0, 0] == pytest.approx(3.0, abs=1e-6)  # as close to feasible as the box allows
+
+
+def test_infeasible_and_nan_problems_are_reported_not_raised():
+    def logit(z):
+        out = torch.full((len(z),), 3.0)  # never below -margin: infeasible everywhere
+        return torch.where(z[:, 0] > 0.5, torch.nan, out)  # and NaN for some inputs
+
+    z_user = torch.zeros(3, D)
+    z_user[1, 0] = 1.0
+    res = alm_resolve(LatentObjective(z_user), logit, z_user, LO, HI, ALMSettings(max_outer=4, inner_iters=5))
+    assert not res.feasible.any() and not res.converged.any()
+    assert res.finite.tolist() == [True, False, True]
+    assert torch.isfinite(res.z).all()
+
+
+def test_settings_are_validated():
+    with pytest.raises(ValueError, match="tolerances"):
+        ALMSettings(inner_iters=0)
+    with pytest.raises(ValueError, match="mu0"):
+        ALMSettings(mu0=0)
+
+
+def test_cartesian_objective_gradient_matches_finite_differences(tube_space):
+    space = tube_space[0]
+    space64 = type(space).load(next((tube_space[4] / "autoencoders").rglob("latent_space.pt"))).double()
+    gen = torch.Generator().manual_seed(3)
+    z = space64.sample(2, gen).double()
+    with torch.no_grad():
+        target = space64.decode(space64.sample(2, gen).double())
+    subset = torch.arange(0, space64.acap.n_vertices, 3)
+    obj = CartesianObjective(space64, target, vertices=subset)
+    idx = torch.arange(2)
+    zz = z.clone().requires_grad_(True)
+    obj(zz, idx).sum().backward()
+    eps = 1e-6
+    fd = torch.zeros_like(z)
+    for i in range(2):
+        for j in range(z.shape[1]):
+            e = torch.zeros_like(z)
+            e[i, j] = eps
+            fd[i, j] = (obj(z + e, idx)[i] - obj(z - e, idx)[i]) / (2 * eps)
+    torch.testing.assert_close(zz.grad, fd, rtol=1e-5, atol=1e-7)
+    # the objective of a problem reads that problem's target
+    both = obj(z, idx)
+    torch.testing.assert_close(obj(z[1:], idx[1:]), both[1:])
+
+
+def test_batched_lbfgs_solves_independent_badly_scaled_problems():
+    from neuralcol.handling.lbfgs import batched_lbfgs
+
+    # problem b: scaled Rosenbrock s_b * [(1 - x0)^2 + 100 (x1 - x0^2)^2]; minimum (1, 1) for every scale
+    scales = torch.tensor([1e-2, 1.0, 1e3, 1e5])
+
+    def rosen(x, idx):
+        return scales[idx] * ((1 - x[:, 0]) ** 2 + 100 * (x[:, 1] - x[:, 0] ** 2) ** 2)
+
+    x0 = torch.tensor([[-1.2, 1.0]] * 4)
+    res = batched_lbfgs(rosen, x0, torch.full((2,), -5.0), torch.full((2,), 5.0), max_iter=500, gtol=1e-10)
+    torch.testing.assert_close(res.x, torch.ones(4, 2), atol=1e-5, rtol=0)
+    assert res.converged[1:].all() and res.finite.all()
+
+    # box-constrained quadratic: min |x - a|^2 on [0, 1]^3 is clip(a, 0, 1)
+    a = torch.tensor([[2.0, -1.0, 0.3], [0.5, 0.5, 3.0]])
+    res = batched_lbfgs(lambda x, idx: ((x - a[idx]) ** 2).sum(-1), torch.zeros(2, 3), torch.zeros(3),
+                        torch.ones(3), gtol=1e-12)
+    torch.testing.assert_close(res.x, a.clamp(0, 1), atol=1e-9, rtol=0)
