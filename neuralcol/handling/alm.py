@@ -70,7 +70,8 @@ class Resolution(NamedTuple):
 
 
 def alm_resolve(objective: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
-                logit_fn: Callable[[torch.Tensor], torch.Tensor], z_start: torch.Tensor, box_lo: torch.Tensor, box_hi: torch.Tensor,
+                logit_fn: Callable[[torch.Tensor], torch.Tensor], z_start: torch.Tensor, box_lo: torch.Tensor,
+                box_hi: torch.Tensor,
                 settings: ALMSettings = ALMSettings()) -> Resolution:
     """Move each code to the nearest (in ``objective``) code the detector calls collision-free.
 
