@@ -30,7 +30,8 @@ from neuralcol.geometry.mesh_io import write_meshes
 from neuralcol.metrics.plots import partition_colors, render_mesh_png
 from neuralcol.metrics.reconstruction import relative_vertex_error
 from neuralcol.stages.autoencoder import train_or_load_latent_space
-from neuralcol.stages.detector import train_detector
+from neuralcol.stages.detector import load_detector, shared_test_set, train_detector
+from neuralcol.stages.handling import alm_settings, evaluate_handler, export_handling
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.seeding import seed_everything
 
@@ -77,11 +78,29 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     # the neural collision detector, trained by the configured method on labeled decoded samples
     sample_labeler = instantiate(cfg.labeling.labeler)(faces, rest, partition=part)
     t0 = time.perf_counter()
+    settings = alm_settings(cfg.handler.alm)
     with LabelPool(sample_labeler, **OmegaConf.to_container(cfg.labeling.pool)) as pool:
         oracle = LatentOracle(space, pool)
+        # inputs of the collision handler: the first colliding rows of the shared test set
+        test, _, _ = shared_test_set(oracle, cfg.detector, ae_report["cache_key"], cfg.paths.cache_dir)
+        pick = np.flatnonzero(test.pd > 0)[: int(cfg.handler.n_inputs)]
+        z_user, pd_user = torch.as_tensor(test.z[pick]), test.pd[pick]
+
+        def handling(net):
+            return evaluate_handler(net, oracle, z_user, pd_user, settings, int(cfg.handler.batch_size))[0]
+
         det = train_detector(space, oracle, cfg.detector, cfg.method, ae_report["cache_key"], int(cfg.seed),
-                             cfg.paths.cache_dir, run_dir, logger)
-    t_det = time.perf_counter() - t0
+                             cfg.paths.cache_dir, run_dir, logger,
+                             round_eval=handling if cfg.handler.eval_every_round else None)
+        t_det = time.perf_counter() - t0
+        # the collision handler with the final detector
+        net, _ = load_detector(run_dir / "detector.pt")
+        handling_metrics, arrays = evaluate_handler(net, oracle, z_user, pd_user, settings,
+                                                    int(cfg.handler.batch_size))
+    export_handling(run_dir / "handling", arrays, space, sample_labeler, int(cfg.handler.n_examples),
+                    title=f"{cfg.dataset.name}, {cfg.method.name}")
+    for key in ("success_rate", "resolved_rate", "mean_pd_reduction", "mean_embedding_diff"):
+        logger.experiment.add_scalar(f"handling/{key}", handling_metrics[key])
     logger.finalize("success")
     k = min(int(cfg.n_example_meshes), len(ds))
     if k > 0:
@@ -102,6 +121,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
                    "uniform_collision_fraction": det["detector"]["test_set"]["base_rate"]},
         "detector": {**det["detector"], "stage_seconds": t_det},
         "rounds": det["rounds"],
+        "handling": handling_metrics,
     }
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
@@ -128,6 +148,11 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
     for r in metrics["rounds"]:
         print(f"  {r['dataset_size']:<8d} {r['accuracy']:.4f}    {r['fnr']:.4f}  {r['fpr']:.4f}  "
               f"{r['balanced_accuracy']:.4f}")
+    h = metrics["handling"]
+    print(f"collision handler on {h['n']} self-penetrating inputs: success {h['success_rate']:.1%}, resolved "
+          f"{h['resolved_rate']:.1%}, mean PD reduction {h['mean_pd_reduction']:.1%}, mean |Z - Z_user| "
+          f"{h['mean_embedding_diff']:.1f}; {1e3 * h['seconds_per_mesh']:.1f} ms per mesh "
+          f"(failures: {h['n_nonfinite']} non-finite, {h['n_detector_infeasible']} still predicted colliding)")
     print(f"results: {run_dir}   (tensorboard --logdir {run_dir / 'tensorboard'})")
 
 

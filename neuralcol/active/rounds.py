@@ -61,6 +61,8 @@ class DataRounds(L.Callback):
         elbow_min_points, elbow_sensitivity: Kneedle settings.
         checkpoint_path: where each finished round saves the training state.
         seed: seeds re-initialisation in the baselines' rounds.
+        extra_eval: ``net -> dict`` run after the test metrics of every round (e.g. the collision handler's
+            evaluation); stored under ``record["handling"]``.
         select_best_val: at the end of a round, restore the weights of the round's epoch with the best
             validation accuracy (model selection on the 20 % validation split of D_c) before testing.
         on_round: called with the list of round records after each round (metrics.json, TensorBoard).
@@ -69,7 +71,8 @@ class DataRounds(L.Callback):
     def __init__(self, datamodule: CollisionDataModule, acquire: UniformAcquisition, evaluate: Callable,
                  bootstrap: Schedule, update: Schedule, n_aug: int, max_rounds: int, stop_at_elbow: bool,
                  elbow_min_points: int, elbow_sensitivity: float, checkpoint_path: str | Path, seed: int,
-                 select_best_val: bool = True, on_round: Callable[..., None] | None = None):
+                 select_best_val: bool = True, on_round: Callable[..., None] | None = None,
+                 extra_eval: Callable | None = None):
         if n_aug < 1 or max_rounds < 0:
             raise ValueError(f"n_aug={n_aug} must be >= 1 and max_rounds={max_rounds} >= 0")
         self.dm = datamodule
@@ -83,6 +86,7 @@ class DataRounds(L.Callback):
         self.seed = int(seed)
         self.on_round = on_round
         self.select_best_val = bool(select_best_val)
+        self.extra_eval = extra_eval
         self._best: tuple[float, int, dict] | None = None  # (val accuracy, epoch, weights) of this round
         # state saved with checkpoints
         self.round = 0
@@ -171,6 +175,8 @@ class DataRounds(L.Callback):
                   "project_seconds": self.seconds["project"],
                   "n_projected_total": int((rows.origin == 1).sum()),
                   "subset_counts": np.bincount(rows.subset, minlength=3).tolist()}
+        if self.extra_eval is not None:
+            record["handling"] = self.extra_eval(pl_module.net)
         self.rounds.append(record)
         if self.on_round is not None:  # recorded before the (long) acquisition, so a crash there keeps it
             self.on_round(self.rounds, False)

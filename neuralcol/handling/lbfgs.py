@@ -37,7 +37,7 @@ def _value_and_grad(fn, x: torch.Tensor, idx: torch.Tensor) -> tuple[torch.Tenso
 
 def batched_lbfgs(fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], x0: torch.Tensor, lo: torch.Tensor,
                   hi: torch.Tensor, max_iter: int = 100, gtol: float = 1e-9, history: int = 10,
-                  c1: float = 1e-4, max_backtracks: int = 30) -> LBFGSResult:
+                  c1: float = 1e-4, max_backtracks: int = 12) -> LBFGSResult:
     """Minimise each ``f_b`` from ``x0[b]`` inside the box.
 
     Args:

@@ -17,6 +17,17 @@ def partition_colors(partition: np.ndarray, cmap: str = "tab20") -> np.ndarray:
     return np.asarray([cm(i % cm.N) for i in range(k)])[partition]
 
 
+def depth_colors(depths: np.ndarray) -> np.ndarray:
+    """(V,) per-vertex penetration depth -> (V, 4) RGBA: light grey where 0, red (darker = deeper) where > 0."""
+    d = np.asarray(depths, np.float64)
+    out = np.tile(np.array([0.78, 0.78, 0.80, 1.0]), (len(d), 1))
+    pos = d > 0
+    if pos.any():
+        t = np.clip(d[pos] / d[pos].max(), 0.0, 1.0)[:, None]
+        out[pos] = np.concatenate([0.95 - 0.35 * t, 0.25 - 0.2 * t, 0.2 - 0.15 * t, np.ones_like(t)], 1)
+    return out
+
+
 def render_mesh_png(path: str | Path, vertices: np.ndarray, faces: np.ndarray, vertex_colors: np.ndarray,
                     views: Sequence[tuple[float, float]] = ((15, -90), (15, 0), (15, 90)), title: str = "",
                     size: float = 4.0) -> Path:

@@ -80,9 +80,21 @@ def evaluate_on_test(module: DetectorLitModule, test: CollisionRows) -> dict:
     return detection_metrics(logits.numpy() > 0, np.asarray(test.collides, bool))
 
 
+def shared_test_set(oracle: LatentOracle, det_cfg, latent_key: str, cache_dir: str | Path):
+    """The fixed test set of uniform samples (labeled once, cached, shared by every method and seed):
+    (rows, seconds spent labeling now, rows labeled now)."""
+    det = _as_dict(det_cfg)
+    shared = samples_cache_dir(cache_dir, latent_key, oracle.pool.labeler)
+    return labeled_uniform_rows(shared / f"test_s{det['test_seed']}.h5", oracle, int(det["test_size"]),
+                                int(det["test_seed"]), desc="labeling the test set")
+
+
 def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key: str, seed: int,
-                   cache_dir: str | Path, run_dir: str | Path, logger=None) -> dict:
-    """Run one method end to end (or resume it); returns ``{"rounds": [...], "detector": {...}}``."""
+                   cache_dir: str | Path, run_dir: str | Path, logger=None, round_eval=None) -> dict:
+    """Run one method end to end (or resume it); returns ``{"rounds": [...], "detector": {...}}``.
+
+    ``round_eval`` (``net -> dict``), if given, runs after every round's test (e.g. the handler's evaluation).
+    """
     det, method = _as_dict(det_cfg), _as_dict(method_cfg)
     name = method["name"]
     if name not in METHODS:
@@ -98,9 +110,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     shared = samples_cache_dir(cache_dir, latent_key, labeler)
     # 1. the fixed test set (shared by every method and seed)
     t0 = time.perf_counter()
-    test, test_label_s, test_labeled = labeled_uniform_rows(shared / f"test_s{det['test_seed']}.h5", oracle,
-                                                            int(det["test_size"]), int(det["test_seed"]),
-                                                            desc="labeling the test set")
+    test, test_label_s, test_labeled = shared_test_set(oracle, det, latent_key, cache_dir)
     test_s = time.perf_counter() - t0
     # 2. D_c, the acquisition and the rounds
     pd_unit = float(labeler.cap)
@@ -137,7 +147,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     rounds_cb = DataRounds(dm, acquire, lambda m: evaluate_on_test(m, test), sched["bootstrap"], sched["update"],
                            int(det["n_aug"]), int(det["max_rounds"]), bool(det["stop"]["kneedle"]),
                            int(det["stop"]["min_points"]), float(det["stop"]["sensitivity"]), ckpt, seed,
-                           select_best_val=bool(det["select_best_val"]), on_round=on_round)
+                           select_best_val=bool(det["select_best_val"]), on_round=on_round, extra_eval=round_eval)
 
     def summary() -> dict:
         return {"method": name, "stopped_by": rounds_cb.stopped_by, "elbow_dataset_size": rounds_cb.elbow,
