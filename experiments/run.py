@@ -67,7 +67,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     logger = TensorBoardLogger(str(run_dir), name="tensorboard", version="")
     t0 = time.perf_counter()
     space, ae_report, ae_cached = train_or_load_latent_space(
-        ds, feats, cfg.autoencoder, cfg.dataset.latent, cfg.seed, Path(cfg.paths.cache_dir), logger)
+        ds, feats, cfg.autoencoder, cfg.dataset.latent, int(cfg.autoencoder_seed), Path(cfg.paths.cache_dir), logger)
     t_ae = time.perf_counter() - t0
     part = space.partition.numpy()
     render_mesh_png(run_dir / "subdomains.png", rest, faces, partition_colors(part),
@@ -91,16 +91,19 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
 
         det = train_detector(space, oracle, cfg.detector, cfg.method, ae_report["cache_key"], int(cfg.seed),
                              cfg.paths.cache_dir, run_dir, logger,
-                             round_eval=handling if cfg.handler.eval_every_round else None)
+                             round_eval=handling if cfg.handler.eval_every_round and len(z_user) else None)
         t_det = time.perf_counter() - t0
-        # the collision handler with the final detector
-        net, _ = load_detector(run_dir / "detector.pt")
-        handling_metrics, arrays = evaluate_handler(net, oracle, z_user, pd_user, settings,
-                                                    int(cfg.handler.batch_size))
-    export_handling(run_dir / "handling", arrays, space, sample_labeler, int(cfg.handler.n_examples),
-                    title=f"{cfg.dataset.name}, {cfg.method.name}")
-    for key in ("success_rate", "resolved_rate", "mean_pd_reduction", "mean_embedding_diff"):
-        logger.experiment.add_scalar(f"handling/{key}", handling_metrics[key])
+        # the collision handler with the final detector (handler.n_inputs = 0 skips it)
+        handling_metrics, arrays = None, None
+        if len(z_user):
+            net, _ = load_detector(run_dir / "detector.pt")
+            handling_metrics, arrays = evaluate_handler(net, oracle, z_user, pd_user, settings,
+                                                        int(cfg.handler.batch_size))
+    if handling_metrics is not None:
+        export_handling(run_dir / "handling", arrays, space, sample_labeler, int(cfg.handler.n_examples),
+                        title=f"{cfg.dataset.name}, {cfg.method.name}")
+        for key in ("success_rate", "resolved_rate", "mean_pd_reduction", "mean_embedding_diff"):
+            logger.experiment.add_scalar(f"handling/{key}", handling_metrics[key])
     logger.finalize("success")
     k = min(int(cfg.n_example_meshes), len(ds))
     if k > 0:
@@ -149,10 +152,11 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
         print(f"  {r['dataset_size']:<8d} {r['accuracy']:.4f}    {r['fnr']:.4f}  {r['fpr']:.4f}  "
               f"{r['balanced_accuracy']:.4f}")
     h = metrics["handling"]
-    print(f"collision handler on {h['n']} self-penetrating inputs: success {h['success_rate']:.1%}, resolved "
-          f"{h['resolved_rate']:.1%}, mean PD reduction {h['mean_pd_reduction']:.1%}, mean |Z - Z_user| "
-          f"{h['mean_embedding_diff']:.1f}; {1e3 * h['seconds_per_mesh']:.1f} ms per mesh "
-          f"(failures: {h['n_nonfinite']} non-finite, {h['n_detector_infeasible']} still predicted colliding)")
+    if h is not None:
+            print(f"collision handler on {h['n']} self-penetrating inputs: success {h['success_rate']:.1%}, resolved "
+              f"{h['resolved_rate']:.1%}, mean PD reduction {h['mean_pd_reduction']:.1%}, mean |Z - Z_user| "
+              f"{h['mean_embedding_diff']:.1f}; {1e3 * h['seconds_per_mesh']:.1f} ms per mesh (failures: "
+              f"{h['n_nonfinite']} non-finite, {h['n_detector_infeasible']} still predicted colliding)")
     print(f"results: {run_dir}   (tensorboard --logdir {run_dir / 'tensorboard'})")
 
 
