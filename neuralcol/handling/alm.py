@@ -45,8 +45,7 @@ class ALMSettings:
     shrink: float = 0.25         # required violation reduction per outer iteration
     max_outer: int = 20
     inner_iters: int = 30        # L-BFGS iterations per outer iteration
-    inner_gtol: float = 1.0e-6   # L-BFGS stops a problem when its projected gradient is below this ...
-    inner_gtol0: float = 1.0e-2  # ... or below inner_gtol0 * 0.1^k in outer iteration k (inexact early solves)
+    inner_gtol: float = 1.0e-6   # L-BFGS stops a problem when its projected gradient is below this
     tol: float = 1.0e-5          # stop when feasible and max |dx| < tol (box-normalised units)
     feas_tol: float = 1.0e-6     # feasible: logit + margin <= feas_tol (ALM approaches the boundary from outside)
 
@@ -54,8 +53,7 @@ class ALMSettings:
         if self.mu0 <= 0 or self.mu_growth < 1 or self.mu_max < self.mu0 or not 0 < self.shrink <= 1:
             raise ValueError(f"handler settings {self}: need mu0 > 0, mu_growth >= 1, mu_max >= mu0, "
                              "0 < shrink <= 1")
-        if (self.max_outer < 1 or self.inner_iters < 1 or self.tol <= 0 or self.inner_gtol <= 0
-                or self.inner_gtol0 <= 0 or self.feas_tol < 0):
+        if self.max_outer < 1 or self.inner_iters < 1 or self.tol <= 0 or self.inner_gtol <= 0 or self.feas_tol < 0:
             raise ValueError(f"handler settings {self}: iteration counts and tolerances must be positive")
 
 
@@ -108,7 +106,7 @@ def alm_resolve(objective: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
     outer = torch.zeros(b, dtype=torch.long, device=z_start.device)
     with torch.no_grad():
         viol = torch.relu(logit_fn(to_z(x)) + settings.margin)
-    for k in range(settings.max_outer):
+    for _ in range(settings.max_outer):
         idx = torch.nonzero(active).flatten()
         if len(idx) == 0:
             break
@@ -122,7 +120,7 @@ def alm_resolve(objective: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
 
         with torch.enable_grad():
             new = batched_lbfgs(lagrangian, x[idx], lo, hi, max_iter=settings.inner_iters,
-                                gtol=max(settings.inner_gtol, settings.inner_gtol0 * 0.1 ** k)).x
+                                gtol=settings.inner_gtol).x
         with torch.no_grad():
             c = logit_fn(to_z(new)) + settings.margin
             ok = torch.isfinite(new).all(-1) & torch.isfinite(c)
