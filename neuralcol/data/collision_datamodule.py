@@ -120,8 +120,5 @@ class CollisionDataModule(L.LightningDataModule):
             self.refresh()
         return DataLoader(TensorDataset(*self._val), batch_size=self.val_batch_size)
 
-    def teardown(self, stage: str | None = None) -> None:
-        pass
-
     def close(self) -> None:
         self.store.close()

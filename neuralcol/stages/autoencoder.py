@@ -17,7 +17,7 @@ import lightning as L
 import numpy as np
 import torch
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from scipy.cluster.vq import kmeans2
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -30,6 +30,7 @@ from neuralcol.lit.autoencoder import AutoencoderLitModule
 from neuralcol.metrics.reconstruction import relative_vertex_error
 from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder, Level2Autoencoders
 from neuralcol.nn.latent_space import LatentSpace
+from neuralcol.utils.config import as_dict
 
 
 class PartitionReport(NamedTuple):
@@ -129,11 +130,6 @@ def autoencoder_cache_key(ds: MeshDataset, reference_index: int, acap_kwargs: di
     return h.hexdigest()[:16]
 
 
-def _as_dict(cfg: DictConfig | dict) -> dict:
-    """A plain dict of a Hydra config node (resolved) or of a mapping."""
-    return OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
-
-
 def _scheduler(ae_cfg: dict, epochs: int):
     """The configured LR scheduler partial; a ``T_max: null`` entry is set to the stage's epochs."""
     cfg = ae_cfg.get("scheduler")
@@ -167,7 +163,7 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
     Returns:
         The latent space and a report dict (errors, partition facts, seconds).
     """
-    ae, lat = _as_dict(ae_cfg), _as_dict(latent_cfg)
+    ae, lat = as_dict(ae_cfg), as_dict(latent_cfg)
     t_start = time.perf_counter()
     L.seed_everything(seed, workers=True, verbose=False)
     n = len(ds)
@@ -232,7 +228,7 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
         (latent space, report, loaded_from_cache); ``report["cache_key"]`` identifies the latent space (later
         caches, e.g. labeled test sets, are keyed by it).
     """
-    ae, lat = _as_dict(ae_cfg), _as_dict(latent_cfg)
+    ae, lat = as_dict(ae_cfg), as_dict(latent_cfg)
     train_keys = {k: v for k, v in ae.items() if k not in ("progress_bar", "accelerator", "val_every")}
     key = autoencoder_cache_key(ds, feats.reference_index, feats.acap.settings, train_keys, lat, seed)
     path = Path(cache_dir) / "autoencoders" / key / "latent_space.pt" if cache_dir else None

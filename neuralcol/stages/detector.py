@@ -18,7 +18,6 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
 
 from neuralcol.active.acquisition import ProjectedAcquisition, UniformAcquisition
 from neuralcol.active.oracle import LatentOracle
@@ -29,12 +28,9 @@ from neuralcol.data.uniform_samples import labeled_uniform_rows
 from neuralcol.lit.detector import DetectorLitModule
 from neuralcol.metrics.detection import detection_metrics
 from neuralcol.nn.detector import CollisionDetector
+from neuralcol.utils.config import as_dict
 
 METHODS = ("supv", "supv_bd", "active")
-
-
-def _as_dict(cfg) -> dict:
-    return OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
 
 
 def samples_cache_dir(cache_dir: str | Path, latent_key: str, labeler) -> Path:
@@ -83,7 +79,7 @@ def evaluate_on_test(module: DetectorLitModule, test: CollisionRows) -> dict:
 def shared_test_set(oracle: LatentOracle, det_cfg, latent_key: str, cache_dir: str | Path):
     """The fixed test set of uniform samples (labeled once, cached, shared by every method and seed):
     (rows, seconds spent labeling now, rows labeled now)."""
-    det = _as_dict(det_cfg)
+    det = as_dict(det_cfg)
     shared = samples_cache_dir(cache_dir, latent_key, oracle.pool.labeler)
     return labeled_uniform_rows(shared / f"test_s{det['test_seed']}.h5", oracle, int(det["test_size"]),
                                 int(det["test_seed"]), desc="labeling the test set")
@@ -95,7 +91,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
 
     ``round_eval`` (``net -> dict``), if given, runs after every round's test (e.g. the handler's evaluation).
     """
-    det, method = _as_dict(det_cfg), _as_dict(method_cfg)
+    det, method = as_dict(det_cfg), as_dict(method_cfg)
     name = method["name"]
     if name not in METHODS:
         raise ValueError(f"method.name={name!r}; use one of {METHODS}")

@@ -21,16 +21,15 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
 
 from neuralcol.active.oracle import LatentOracle
 from neuralcol.handling.alm import ALMSettings, Resolution, alm_resolve
 from neuralcol.handling.objectives import LatentObjective
+from neuralcol.utils.config import as_dict
 
 
 def alm_settings(cfg) -> ALMSettings:
-    d = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
-    return ALMSettings(**d)
+    return ALMSettings(**as_dict(cfg))
 
 
 def handle_codes(net: torch.nn.Module, z_user: torch.Tensor, box_lo: torch.Tensor, box_hi: torch.Tensor,
