@@ -1,13 +1,16 @@
 """Resolve self-collisions of your own poses with a trained run:
 
     python -m experiments.handle RUN_DIR INPUT... [--out DIR] [--objective latent|cartesian] [--vertices FILE]
+                                 [--margins M...] [--no-verify]
 
 INPUT: meshes (``.obj``/``.ply``/``.off``) with the data set's topology, or ``.npy`` files of latent codes
 (D,) or (N, D). Each input is encoded (meshes), moved by the augmented-Lagrangian handler to the nearest code
 the run's detector calls collision-free, decoded and written to ``DIR/<name>_resolved.obj``; PD is measured
 with the exact labeler before and after and printed. ``--objective cartesian`` keeps the result close to the
 input mesh's vertices (optionally only those listed in ``--vertices``, a text file of vertex indices, e.g.
-a hand to keep in place) instead of close to its latent code.
+a hand to keep in place) instead of close to its latent code. Results the exact labeler still finds
+self-penetrating are handled again with the larger margins of the run's ``handler.verify_margins`` (or
+``--margins``), and the result with the lowest PD is kept; ``--no-verify`` trusts the detector alone.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +31,7 @@ from neuralcol.geometry.mesh_io import MESH_SUFFIXES, read_mesh, write_mesh
 from neuralcol.handling.objectives import CartesianObjective, LatentObjective
 from neuralcol.nn.latent_space import LatentSpace
 from neuralcol.stages.detector import load_detector
-from neuralcol.stages.handling import alm_settings, handle_codes
+from neuralcol.stages.handling import alm_settings, handle_codes, verified_escalation
 from neuralcol.utils.cli import report_user_errors
 
 
@@ -87,6 +91,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=None, help="output directory (default: RUN_DIR/handled)")
     parser.add_argument("--objective", choices=("latent", "cartesian"), default="latent")
     parser.add_argument("--vertices", type=Path, default=None, help="vertex indices for --objective cartesian")
+    parser.add_argument("--margins", type=float, nargs="+", default=None,
+                        help="verification margins (default: the run's handler.verify_margins)")
+    parser.add_argument("--no-verify", action="store_true",
+                        help="trust the detector: no exact check and no re-handling with larger margins")
     args = parser.parse_args(argv)
     cfg, space, net = load_run(args.run_dir)
     names, z_user, v_user = read_inputs(args.inputs, space)
@@ -102,25 +110,42 @@ def main(argv: list[str] | None = None) -> None:
     else:
         objective = LatentObjective(z_user)
     settings = alm_settings(cfg.handler.alm)
-    res = handle_codes(net, z_user, space.box_lo, space.box_hi, settings, objective=objective,
-                       batch_size=int(cfg.handler.batch_size))
+    margins = [] if args.no_verify else \
+        [float(m) for m in (args.margins or OmegaConf.select(cfg, "handler.verify_margins", default=[]))]
     faces = space.faces.numpy()
-    rest = space.rest_vertices.numpy()
-    labeler = instantiate(cfg.labeling.labeler)(faces, rest, partition=space.partition.numpy())
+    labeler = instantiate(cfg.labeling.labeler)(faces, space.rest_vertices.numpy(), partition=space.partition.numpy())
+
+    def handle(rows: np.ndarray, margin: float):
+        idx_map = torch.as_tensor(rows)
+        return handle_codes(net, z_user[idx_map], space.box_lo, space.box_hi, replace(settings, margin=margin),
+                            objective=lambda z, idx: objective(z, idx_map[idx]), batch_size=int(cfg.handler.batch_size))
+
+    def label(z: torch.Tensor) -> np.ndarray:
+        with torch.no_grad():
+            verts = space.decode(z).double().numpy()
+        return np.array([labeler.label(v).pd for v in verts])
+
+    res = handle(np.arange(len(z_user)), settings.margin)
+    pd_after = np.full(len(z_user), np.nan)
+    pd_after[res.finite.numpy()] = label(res.z[res.finite])
+    z, stage = res.z, np.zeros(len(z_user), dtype=np.int64)
+    if margins:
+        z, pd_after, stage, _ = verified_escalation(handle, label, z_user, z, pd_after, margins)
     out = args.out or args.run_dir / "handled"
     out.mkdir(parents=True, exist_ok=True)
     with torch.no_grad():
         before = space.decode(z_user).double().numpy()
-        after = space.decode(res.z).double().numpy()
-    print(f"{'input':<24} {'PD input':>10} {'PD decoded':>11} {'PD result':>10}  |Z - Z_user|  detector")
+        after = space.decode(z).double().numpy()
+    print(f"{'input':<24} {'PD input':>10} {'PD decoded':>11} {'PD result':>10}  |Z - Z_user|  margin")
+    used = [settings.margin] + margins
     for i, name in enumerate(names):
         pd_in = labeler.label(v_user[i].numpy()).pd if v_user is not None else float("nan")
-        pd_b, pd_a = labeler.label(before[i]).pd, labeler.label(after[i]).pd
+        pd_b = labeler.label(before[i]).pd
         write_mesh(out / f"{name}_resolved.obj", after[i], faces)
-        status = "free" if res.feasible[i] else ("NaN" if not res.finite[i] else "still colliding")
-        print(f"{name:<24} {pd_in:>10.4g} {pd_b:>11.4g} {pd_a:>10.4g}  {float((res.z[i] - z_user[i]).norm()):>12.2f}  "
-              f"{status}")
-    print(f"wrote {len(names)} meshes to {out} (PD > 0: self-penetrating; units of the mesh)", file=sys.stderr)
+        print(f"{name:<24} {pd_in:>10.4g} {pd_b:>11.4g} {pd_after[i]:>10.4g}  "
+              f"{float((z[i] - z_user[i]).norm()):>12.2f}  {used[stage[i]]:g}")
+    print(f"wrote {len(names)} meshes to {out} (PD > 0: self-penetrating, in units of the mesh; margin: the "
+          "detector-logit margin of the kept result)", file=sys.stderr)
 
 
 if __name__ == "__main__":

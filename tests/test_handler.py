@@ -129,3 +129,57 @@ def test_batched_lbfgs_solves_independent_badly_scaled_problems():
     res = batched_lbfgs(lambda x, idx: ((x - a[idx]) ** 2).sum(-1), torch.zeros(2, 3), torch.zeros(3),
                         torch.ones(3), gtol=1e-12)
     torch.testing.assert_close(res.x, a.clamp(0, 1), atol=1e-9, rtol=0)
+
+
+def test_verified_escalation_keeps_the_smallest_margin_that_resolves():
+    """Exact truth: PD = z_0 (collides for z_0 > 0); the detector's boundary is wrong, at z_0 = 0.5, with logit
+    4 (z_0 - 0.5). Handling with margin m gives z_0 = 0.5 - m / 4 exactly, so an input needs margin >= 2 to be
+    resolved; inputs already below the true boundary after the first handling keep it."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from neuralcol.stages.handling import pd_reduction_metrics, verified_escalation
+
+    z_user = torch.zeros(3, D)
+    z_user[:, 0] = torch.tensor([0.9, 0.45, 1.5])
+    logit = lambda z: 4.0 * (z[:, 0] - 0.5)  # noqa: E731
+    st = ALMSettings(margin=0.5, tol=1e-8, feas_tol=1e-9)
+
+    def handle(rows, margin):
+        z0 = z_user[torch.as_tensor(rows)]
+        return alm_resolve(LatentObjective(z0), logit, z0, LO, HI, replace(st, margin=margin))
+
+    def label(z):
+        return z[:, 0].numpy().astype(np.float64)
+
+    first = handle([0, 1, 2], st.margin)
+    # input 1 (z_0 = 0.45) is already predicted free: the handler leaves it where it is (still colliding)
+    np.testing.assert_allclose(first.z[:, 0].numpy(), [0.375, 0.375, 0.375], atol=1e-6)
+    calls = []
+    z, pd, stage, handled = verified_escalation(lambda r, m: calls.append(m) or handle(r, m), label, z_user,
+                                                first.z, label(first.z), margins=[1.0, 2.0, 3.0])
+    assert handled == [3, 3, 0] and calls == [1.0, 2.0]
+    np.testing.assert_allclose(z[:, 0].numpy(), [0.0, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_array_equal(stage, [2, 2, 2])
+    torch.testing.assert_close(z[:, 1:], z_user[:, 1:])
+    m, _ = pd_reduction_metrics(z_user.numpy(), z.numpy(), z_user[:, 0].numpy(), np.maximum(pd, 0))
+    assert m["success_rate"] == 1.0 and m["resolved_rate"] == 1.0 and m["mean_pd_reduction"] == pytest.approx(1.0)
+    assert m["mean_embedding_diff"] == pytest.approx(float(np.mean([0.9, 0.45, 1.5])), abs=1e-5)
+
+
+def test_pd_reduction_metrics_by_hand():
+    import numpy as np
+
+    from neuralcol.stages.handling import pd_reduction_metrics
+
+    z_user = np.zeros((4, 2))
+    z = np.array([[3.0, 4.0], [0.0, 1.0], [0.0, 2.0], [1.0, 0.0]])
+    pd_before = np.array([1.0, 2.0, 1.0, 4.0])
+    pd_after = np.array([-0.5, 1.0, 2.0, np.nan])  # resolved, halved, worse, handler failed (NaN)
+    m, arr = pd_reduction_metrics(z_user, z, pd_before, pd_after)
+    assert m["n"] == 4 and m["success_rate"] == 0.5 and m["resolved_rate"] == 0.25
+    assert m["mean_pd_reduction"] == pytest.approx((1.0 + 0.5) / 2)
+    assert m["mean_embedding_diff"] == pytest.approx((5.0 + 1.0) / 2)
+    assert m["mean_pd_reduction_all"] == pytest.approx((1.0 + 0.5 - 1.0) / 3)
+    np.testing.assert_array_equal(arr["success"], [True, True, False, False])

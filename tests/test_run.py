@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = str(ROOT / "conf")
@@ -31,7 +32,7 @@ def test_paper_datasets_present():
     assert {"scape", "swing", "jump", "skirt", "hand", "proc_hand", "proc_cloth"} <= set(DATASETS)
 
 
-def test_run_on_scape(tmp_path, scape_dir):
+def test_run_on_scape(tmp_path, scape_dir, capsys):
     from experiments.run import run
 
     cfg = _compose(["dataset=scape", f"paths.data_dir={scape_dir.parent}", f"paths.cache_dir={tmp_path}/cache",
@@ -51,6 +52,21 @@ def test_run_on_scape(tmp_path, scape_dir):
     assert sum(saved["autoencoder"]["partition_sizes"]) == 2161
     assert (tmp_path / "run" / "subdomains.png").stat().st_size > 10_000
     assert any((tmp_path / "run" / "tensorboard").iterdir()), "TensorBoard event files"
+    h = saved["handling"]
+    for key in ("success_rate", "resolved_rate", "mean_pd_reduction", "mean_embedding_diff", "seconds_per_mesh"):
+        assert key in h and key in h["verified"]
+    assert h["n"] > 0 and h["verified"]["resolved_rate"] >= h["resolved_rate"]
+    assert (tmp_path / "run" / "handling" / "reduction_vs_difference.png").is_file()
+    # the users' command on the finished run: a mesh in, the resolved mesh out, exact PD printed
+    (tmp_path / "run" / ".hydra").mkdir()
+    OmegaConf.save(cfg, tmp_path / "run" / ".hydra" / "config.yaml")
+    from experiments.handle import main as handle_main
+
+    handle_main([str(tmp_path / "run"), str(tmp_path / "run" / "examples" / "input" / "1.obj"),
+                 "--out", str(tmp_path / "handled")])
+    out = capsys.readouterr().out
+    assert "PD result" in out and out.strip().splitlines()[-1].startswith("1 ")
+    assert (tmp_path / "handled" / "1_resolved.obj").is_file()
     again = run(cfg, tmp_path / "run2")
     assert again["autoencoder"]["from_cache"], "the second run reuses the trained autoencoder"
 

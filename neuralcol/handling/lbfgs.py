@@ -4,7 +4,8 @@ Each problem keeps its own curvature history, step length and stopping state, so
 (e.g. one whose augmented-Lagrangian penalty is large) does not slow the others down, as it would if the sum
 of all problems were handed to one L-BFGS (``torch.optim.LBFGS`` shares one line search and one history).
 Per iteration: the two-loop recursion gives a direction per problem (steepest descent where it is not a
-descent direction), then a projected Armijo backtracking search per problem, all evaluated in batches.
+descent direction), then a projected Armijo backtracking search per problem (quadratic interpolation, safeguarded to
+[0.1, 0.5] of the previous trial step), all evaluated in batches.
 A problem stops when its projected gradient ``|P(x - g) - x|_inf`` is below ``gtol``.
 """
 
@@ -63,6 +64,7 @@ def batched_lbfgs(fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], x0: 
     rho = torch.zeros(history, b, device=dev, dtype=dt)
     n_hist = torch.zeros(b, dtype=torch.long, device=dev)
     iters = torch.zeros(b, dtype=torch.long, device=dev)
+    t_last = torch.ones(b, device=dev, dtype=dt)  # last accepted step length per problem
     pg = (proj(x - g) - x).abs().amax(-1)
     converged = finite & (pg < gtol)
     active = finite & ~converged
@@ -94,7 +96,20 @@ def batched_lbfgs(fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], x0: 
         descent = (direction * ga).sum(-1) < 0
         direction = torch.where(descent[:, None], direction, -ga)
         # projected Armijo backtracking, per problem
-        t = torch.ones(len(idx), device=dev, dtype=dt)
+        # a problem whose predicted decrease is below the rounding level of f cannot pass an Armijo test:
+        # it is as converged as this precision allows (otherwise it would burn max_backtracks trials)
+        predicted = -(ga * (proj(xa + direction) - xa)).sum(-1)
+        flat = predicted <= 8 * torch.finfo(dt).eps * fa.abs()
+        if flat.any():
+            converged[idx[flat]] = True
+            active[idx[flat]] = False
+            keep_p = ~flat
+            idx, xa, fa, ga, direction = idx[keep_p], xa[keep_p], fa[keep_p], ga[keep_p], direction[keep_p]
+            if len(idx) == 0:
+                break
+        # first trial: twice the last accepted step (at most 1), so a problem whose steps keep being cut
+        # (e.g. a stiff penalty) does not pay the same backtracks every iteration
+        t = (2 * t_last[idx]).clamp_max(1.0)
         accepted = torch.zeros(len(idx), dtype=torch.bool, device=dev)
         x_new, f_new = xa.clone(), fa.clone()
         for _ in range(max_backtracks):
@@ -104,11 +119,19 @@ def batched_lbfgs(fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], x0: 
             trial = proj(xa[pend] + t[pend, None] * direction[pend])
             with torch.no_grad():
                 ft = fn(trial, idx[pend])
-            ok = torch.isfinite(ft) & (ft <= fa[pend] + c1 * (ga[pend] * (trial - xa[pend])).sum(-1))
+            slope = (ga[pend] * (trial - xa[pend])).sum(-1)  # directional derivative along the projected step
+            ok = torch.isfinite(ft) & (ft <= fa[pend] + c1 * slope)
             x_new[pend[ok]], f_new[pend[ok]] = trial[ok], ft[ok]
             accepted[pend[ok]] = True
-            t[pend[~ok]] *= 0.5
+            # next step: minimiser of the quadratic through f(0), f'(0) and f(t), kept in [0.1 t, 0.5 t]
+            # (plain halving where f is not finite); fewer trials than halving when t = 1 overshoots a lot
+            bad = ~ok
+            tb, fb, sb = t[pend[bad]], ft[bad], slope[bad]
+            curv = fb - fa[pend[bad]] - sb
+            t_q = torch.where(torch.isfinite(fb) & (curv > 0), -sb * tb / (2 * curv.clamp_min(1e-300)), 0.5 * tb)
+            t[pend[bad]] = torch.minimum(torch.maximum(t_q, 0.1 * tb), 0.5 * tb)
         # problems whose line search failed stop where they are
+        t_last[idx[accepted]] = t[accepted]
         stuck = idx[~accepted]
         active[stuck] = False
         idx, x_new, xa, ga = idx[accepted], x_new[accepted], xa[accepted], ga[accepted]
