@@ -182,13 +182,114 @@ def bench_pool(ctx: dict) -> dict:
             "pool_speedup": summarize([a / b for a, b in zip(t1, t2)])}
 
 
+def _neural_run(ctx: dict) -> Path:
+    """A finished SCAPE run to take the detector and latent space from: ``--run-dir``, else the newest one under
+    ``outputs/``, else a small one built now into ``bench/tmp/run`` (tiny autoencoder and data, but the CPU
+    preset's detector size, so per-sample costs are representative; iteration counts less so)."""
+    if ctx.get("run_dir"):
+        return Path(ctx["run_dir"])
+    runs = [p.parent for p in (ROOT / "outputs").glob("**/detector.pt")
+            if (p.parent / "metrics.json").is_file() and (p.parent / ".hydra" / "config.yaml").is_file()
+            and json.loads((p.parent / "metrics.json").read_text()).get("dataset", {}).get("name") == "scape"]
+    if runs:
+        return max(runs, key=lambda p: (p / "detector.pt").stat().st_mtime)
+    run_dir = HERE / "tmp" / "run"
+    if not (run_dir / "detector.pt").is_file():
+        import subprocess
+
+        print("[bench] no finished SCAPE run under outputs/: building a small one in bench/tmp/run", flush=True)
+        subprocess.run([sys.executable, "-m", "experiments.run", "dataset=scape", "autoencoder=tiny", "detector=tiny",
+                        "detector.net.state_dim=64", "detector.net.hidden=128", "handler.n_inputs=0",
+                        f"paths.data_dir={SCAPE_DIR.parent}", f"hydra.run.dir={run_dir}"], cwd=ROOT, check=True)
+    return run_dir
+
+
+def bench_neural(ctx: dict) -> dict:
+    """Neural detector vs exact labels, Newton projection and the collision handler, with a trained detector."""
+    from hydra.utils import instantiate
+
+    from experiments.handle import load_run
+    from neuralcol.active.newton import newton_project
+    from neuralcol.stages.handling import alm_settings, handle_codes
+
+    run_dir = _neural_run(ctx)
+    cfg, space, net = load_run(run_dir)
+    net = net.eval()
+    reps, quick = ctx["reps"], ctx["quick"]
+    gen = torch.Generator().manual_seed(0)
+    z = space.sample(4096, generator=gen)
+    out: dict = {}
+    with torch.no_grad():
+        one = z[:1]
+        b1 = repeat(lambda: net(one).logit, 200 if quick else 1000, warmup=20)
+        b4096 = repeat(lambda: net(z).logit, reps * 3, warmup=2)
+    out["detector_us_per_sample_b1"] = summarize(b1, 1e6)
+    out["detector_us_per_sample_b4096"] = summarize(b4096, 1e6 / len(z))
+    # the exact reference on the same kind of samples: decode + full label, one core
+    labeler = instantiate(cfg.labeling.labeler)(space.faces.numpy(), space.rest_vertices.numpy(),
+                                                partition=space.partition.numpy())
+    n_exact = 16 if quick else 48
+    ze = z[:n_exact]
+
+    def exact():
+        with torch.no_grad():
+            verts = space.decode(ze).double().numpy()
+        return [labeler.label(v) for v in verts]
+
+    exact_s = repeat(exact, max(2, reps // 2))
+    out["exact_ms_per_sample"] = summarize(exact_s, 1e3 / n_exact)
+    out["neural_vs_exact_speedup"] = _ratio(out["exact_ms_per_sample"],
+                                            {k: (v / 1e3 if k != "reps" else v)
+                                             for k, v in out["detector_us_per_sample_b4096"].items()})
+    # Newton projection onto the 0.5 level set (float64, as in active learning), batched
+    newton_cfg = dict(cfg.detector.newton)
+    net64 = __import__("copy").deepcopy(net).double().eval()
+    zn = z[:512 if quick else 1024].double()
+    lo, hi = space.box_lo.double(), space.box_hi.double()
+    iters = []
+
+    def project():
+        p = newton_project(lambda q: net64(q).logit, zn, lo, hi, **newton_cfg)
+        iters.append(float(p.iterations.float().mean()))
+
+    newton_s = repeat(project, max(2, reps // 2))
+    out["newton_ms_per_sample"] = summarize(newton_s, 1e3 / len(zn))
+    out["newton_mean_iterations"] = summarize(iters)
+    # the handler on codes the detector calls colliding, batched as configured
+    with torch.no_grad():
+        colliding = z[net(z).logit > 0][: 256 if quick else 1024]
+    # the current defaults (conf/handler/default.yaml), not the settings the run was made with
+    from omegaconf import OmegaConf
+
+    handler_cfg = OmegaConf.load(ROOT / "conf" / "handler" / "default.yaml")
+    settings = alm_settings(handler_cfg.alm)
+    outer = []
+
+    def handle():
+        res = handle_codes(net, colliding, space.box_lo, space.box_hi, settings,
+                           batch_size=int(handler_cfg.batch_size))
+        outer.append(float(res.outer.float().mean()))
+
+    handler_s = repeat(handle, max(2, reps // 2), warmup=0)
+    out["handler_ms_per_mesh"] = summarize(handler_s, 1e3 / max(len(colliding), 1))
+    out["handler_mean_outer_iterations"] = summarize(outer)
+    where = run_dir.relative_to(ROOT) if run_dir.is_relative_to(ROOT) else run_dir
+    ctx["notes"]["neural"] = (f"detector and latent space of {where}; "
+                              f"exact reference: decode + full label of {n_exact} uniform codes on one core; "
+                              f"handler: {len(colliding)} codes the detector calls colliding, batch "
+                              f"{int(handler_cfg.batch_size)}, conf/handler/default.yaml settings, detector only "
+                              "(no verification)")
+    return out
+
+
 def _ratio(a: dict, b: dict) -> dict:
     """Ratio of two medians measured in the same run (min/max: the ratio of the extremes)."""
     return {"median": a["median"] / b["median"], "min": a["min"] / b["max"], "max": a["max"] / b["min"],
             "reps": min(a["reps"], b["reps"])}
 
 
-BENCHES: dict[str, Callable[[dict], dict]] = {"acap": bench_acap, "labeler": bench_labeler, "pool": bench_pool}
+BENCHES: dict[str, Callable[[dict], dict]] = {"acap": bench_acap, "labeler": bench_labeler, "pool": bench_pool,
+                                              "neural": bench_neural}
 
 
 def write_markdown(results: dict, path: Path) -> None:
@@ -199,6 +300,8 @@ def write_markdown(results: dict, path: Path) -> None:
         f"Command: `{results['command']}`. Each figure: median, min and max over the repetitions; ratios "
         "come from numbers measured in the same run. Sections (date, seconds): "
         + ", ".join(f"{k} ({v['date']}, {v['seconds']})" for k, v in results.get("sections", {}).items()) + ".",
+        "",
+        *[f"- {k}: {v}" for k, v in results.get("notes", {}).items()],
         "",
         "| key | median | min | max | reps |",
         "| --- | ---: | ---: | ---: | ---: |",
@@ -220,6 +323,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="fewer repetitions (development)")
     parser.add_argument("--only", nargs="*", choices=sorted(BENCHES), help="run only these benchmarks")
     parser.add_argument("--out", type=Path, default=HERE, help="folder for results.json / results.md")
+    parser.add_argument("--run-dir", type=Path, default=None,
+                        help="finished SCAPE run for the neural benchmarks (default: the newest under outputs/)")
     args = parser.parse_args(argv)
     if not (SCAPE_DIR / "1.obj").is_file():
         print(f"error: SCAPE not found at {SCAPE_DIR}; set NEURALCOL_DATA to the folder holding scape/",
@@ -228,7 +333,8 @@ def main(argv: list[str] | None = None) -> int:
     from neuralcol import load_mesh_dataset
 
     torch.set_num_threads(os.cpu_count() or 1)
-    ctx = {"scape": load_mesh_dataset(SCAPE_DIR), "reps": 3 if args.quick else 7, "quick": args.quick}
+    ctx = {"scape": load_mesh_dataset(SCAPE_DIR), "reps": 3 if args.quick else 7, "quick": args.quick,
+           "run_dir": args.run_dir, "notes": {}}
     details: dict = {}
     sections: dict = {}
     previous = args.out / "results.json"
@@ -236,6 +342,8 @@ def main(argv: list[str] | None = None) -> int:
         old = json.loads(previous.read_text())
         details.update(old.get("details", {}))
         sections.update(old.get("sections", {}))
+        notes = old.get("notes", {})
+        ctx["notes"].update({k: v for k, v in notes.items() if k not in (args.only or [])})
     for name in args.only or list(BENCHES):
         t0 = time.perf_counter()
         details.update(BENCHES[name](ctx))
@@ -250,6 +358,7 @@ def main(argv: list[str] | None = None) -> int:
         "torch": torch.__version__,
         "command": "python -m bench.run" + (" --quick" if args.quick else ""),
         "sections": sections,
+        "notes": ctx["notes"],
         "details": details,
     })
     args.out.mkdir(parents=True, exist_ok=True)

@@ -144,6 +144,7 @@ def main(argv: list[str] | None = None) -> None:
         write_mesh(out / f"{name}_resolved.obj", after[i], faces)
         print(f"{name:<24} {pd_in:>10.4g} {pd_b:>11.4g} {pd_after[i]:>10.4g}  "
               f"{float((z[i] - z_user[i]).norm()):>12.2f}  {used[stage[i]]:g}")
+    sys.stdout.flush()
     print(f"wrote {len(names)} meshes to {out} (PD > 0: self-penetrating, in units of the mesh; margin: the "
           "detector-logit margin of the kept result)", file=sys.stderr)
 
