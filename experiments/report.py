@@ -1,21 +1,27 @@
 """Compare methods across runs: ``python -m experiments.report RUN_OR_SWEEP_DIR... [--out DIR]``.
 
 Reads every ``metrics.json`` below the given directories (a Hydra multirun directory, single run directories,
-or any mix), groups the runs by data set and method, and writes into ``--out`` (default: the first directory):
+or any mix), groups the runs by data set and method (seeds are pooled: mean ± std), and writes into ``--out``
+(default: the first directory):
 
-* ``report.md``: per data set, accuracy and false negative rate of each method at each data set size,
-  mean ± std over seeds (number of seeds in brackets when not all seeds reached that size), and the
-  base-rate (majority-class) accuracy of the test set;
-* the collision handler with each method's final detector (runs with a ``handling`` entry): success rate,
-  fully-resolved rate, mean relative PD reduction and embedding difference (successful inputs), time per
-  mesh, for the detector alone (the paper's protocol) and after exact verification, mean ± std over seeds;
-* ``accuracy.png`` and ``fnr.png``: the same as charts (paper Figs. 3 and 4), one panel per data set;
+* ``report.md`` and ``table3.csv``: the paper's Table 3 layout per data set — final data set size, accuracy
+  and false negative rate of each method, the equivalent data set size (the size supv_bd needs to reach the
+  method's final accuracy, linearly interpolated on supv_bd's mean accuracy curve, as in the paper), and the
+  detector's parameter count; then accuracy and FNR at every size, the collision handler's exact results,
+  the speed figures and the stability checks;
+* ``accuracy.png``, ``fnr.png``, ``handling.png``: accuracy, FNR and handling success (runs with
+  ``handler.eval_every_round=true``) vs data set size, mean ± std bands over seeds (paper Figs. 3-5);
+* ``speed.png``: accuracy against cumulative labeling + training time per method, and neural vs exact
+  detection time per sample (from ``bench/results.json`` when present);
+* ``stability.png``: the spread of accuracy across seeds per method and size, and handling success vs size
+  per seed (is it monotone?);
 * ``report.json``: the aggregated numbers.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import sys
 from collections import defaultdict
@@ -26,12 +32,16 @@ import numpy as np
 from neuralcol.errors import UserInputError
 from neuralcol.utils.cli import report_user_errors
 
+ROOT = Path(__file__).resolve().parents[1]
 METHOD_ORDER = ("supv", "supv_bd", "active")
 LABELS = {"supv": "Supv", "supv_bd": "Supv+bd", "active": "Active+bd (ours)"}
+HANDLING_KEYS = (("success_rate", "success"), ("resolved_rate", "resolved"), ("mean_pd_reduction", "PD reduction"),
+                 ("mean_embedding_diff", "‖Z − Z_user‖"), ("seconds_per_mesh", "ms / mesh"))
 
 
+# ------------------------------------------------------------------------------------------------ loading
 def find_runs(dirs: list[Path]) -> list[dict]:
-    """metrics.json files below ``dirs`` that hold detector rounds, as dicts (with ``_path``)."""
+    """metrics.json files below ``dirs`` that hold detector rounds, as dicts (with ``_path`` and ``_seed``)."""
     runs = []
     for d in dirs:
         if not d.exists():
@@ -40,6 +50,7 @@ def find_runs(dirs: list[Path]) -> list[dict]:
             m = json.loads(path.read_text())
             if m.get("rounds"):
                 m["_path"] = str(path.parent)
+                m["_seed"] = _seed(m)
                 runs.append(m)
     if not runs:
         raise UserInputError(f"no metrics.json with detector rounds below {[str(d) for d in dirs]}; run "
@@ -56,21 +67,186 @@ def _seed(run: dict) -> int | None:
     return run.get("seed")
 
 
-def aggregate(runs: list[dict]) -> dict:
-    """{dataset: {method: {size: {metric: [values over seeds]}}, "_base": {size: [...]}}}."""
-    out: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(lambda: defaultdict(list))))
+def detector_parameters(run: dict) -> int | None:
+    """The run's detector parameter count (metrics.json, or counted from ``detector.pt`` for older runs)."""
+    n = run["detector"].get("n_parameters")
+    if n is None and (Path(run["_path"]) / "detector.pt").is_file():
+        from neuralcol.stages.detector import load_detector
+
+        net, _ = load_detector(Path(run["_path"]) / "detector.pt")
+        n = int(sum(p.numel() for p in net.parameters()))
+    return n
+
+
+def _methods(names) -> list[str]:
+    return [m for m in METHOD_ORDER if m in names] + sorted(set(names) - set(METHOD_ORDER))
+
+
+def label_cost_per_sample(runs: list[dict]) -> tuple[float | None, str]:
+    """Seconds per exactly labeled sample on this data set (for the cost axis; cached samples were paid for
+    once, by whichever run labeled them first): from a run that labeled the test set, else from the rounds."""
     for run in runs:
-        ds, method = run["dataset"]["name"], run["detector"]["method"]
+        t = run["detector"].get("test_set", {})
+        if t.get("labeled_now"):
+            return t["label_seconds"] / t["labeled_now"], "test-set labeling"
+    rates = {}
+    for run in runs:
+        prev_size, prev_label = 0, 0.0
         for r in run["rounds"]:
-            cell = out[ds][method][int(r["dataset_size"])]
-            for key in ("accuracy", "fnr", "fpr", "balanced_accuracy", "majority_accuracy"):
-                cell[key].append(float(r[key]))
-            cell["seed"].append(_seed(run))
+            d_label, d_size = r["label_seconds"] - prev_label, r["dataset_size"] - prev_size
+            if d_label > 0 and d_size > 0:
+                rates.setdefault(run["detector"]["method"], []).append(d_label / d_size)
+            prev_size, prev_label = r["dataset_size"], r["label_seconds"]
+    # supv labels every new uniform sample itself (its pools are labeled by the first run that needs them);
+    # the other methods take part of theirs from the cache, so their rates understate the cost
+    for method in ("supv", *sorted(rates)):
+        if rates.get(method):
+            return float(np.median(rates[method])), f"the median labeling time per new sample of the {method} runs"
+    return None, "nothing labeled in these runs: labeling time as recorded"
+
+
+# ------------------------------------------------------------------------------------------ aggregation
+def aggregate(runs: list[dict]) -> dict:
+    """{dataset: {method: {size: {metric: [values over seeds]}}}}, metrics of every round (accuracy, fnr, fpr,
+    balanced_accuracy, majority_accuracy, cost_seconds, handling_success) and its seed."""
+    out: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(lambda: defaultdict(list))))
+    by_ds = defaultdict(list)
+    for run in runs:
+        by_ds[run["dataset"]["name"]].append(run)
+    for ds, ds_runs in by_ds.items():
+        c, _ = label_cost_per_sample(ds_runs)
+        for run in ds_runs:
+            method = run["detector"]["method"]
+            for r in run["rounds"]:
+                cell = out[ds][method][int(r["dataset_size"])]
+                for key in ("accuracy", "fnr", "fpr", "balanced_accuracy", "majority_accuracy"):
+                    cell[key].append(float(r[key]))
+                label_s = r["dataset_size"] * c if c is not None else r["label_seconds"]
+                cell["cost_seconds"].append(label_s + r["train_seconds"] + r.get("project_seconds", 0.0))
+                if r.get("handling"):
+                    cell["handling_success"].append(float(r["handling"]["success_rate"]))
+                cell["seed"].append(run["_seed"])
     return out
 
 
-HANDLING_KEYS = (("success_rate", "success"), ("resolved_rate", "resolved"), ("mean_pd_reduction", "PD reduction"),
-                 ("mean_embedding_diff", "‖Z − Z_user‖"), ("seconds_per_mesh", "ms / mesh"))
+def _mean_std(values) -> tuple[float, float]:
+    v = np.asarray(values, dtype=float)
+    return float(v.mean()), float(v.std(ddof=1)) if len(v) > 1 else 0.0
+
+
+def _fmt(values: list[float], n_seeds: int) -> str:
+    if not values:
+        return "—"
+    mean, std = _mean_std(values)
+    s = f"{mean:.4f} ± {std:.4f}" if len(values) > 1 else f"{mean:.4f}"
+    return s if len(values) == n_seeds else f"{s} ({len(values)})"
+
+
+def equivalent_size(sizes: list[int], accuracy: list[float], target: float) -> tuple[float | None, str]:
+    """Size at which the curve (sizes, accuracy) first reaches ``target``, linearly interpolated between the
+    two sizes around it (paper Table 3, last row). Returns (size, note): note is "" when interpolated,
+    "≤" when the first size already reaches it, ">" when the curve never does (size = last size)."""
+    if not sizes:
+        return None, ""
+    if accuracy[0] >= target:
+        return float(sizes[0]), "≤"
+    for i in range(1, len(sizes)):
+        if accuracy[i] >= target:
+            s0, s1, a0, a1 = sizes[i - 1], sizes[i], accuracy[i - 1], accuracy[i]
+            return float(s0 + (target - a0) / (a1 - a0) * (s1 - s0)), ""
+    return float(sizes[-1]), ">"
+
+
+def table3(runs: list[dict], agg: dict) -> list[dict]:
+    """Rows of the paper's Table 3: per data set and method, final size and accuracy/FNR (mean ± std over
+    seeds at each run's last round), equivalent supv_bd size and parameter count."""
+    rows = []
+    for ds in sorted(agg):
+        ds_runs = [r for r in runs if r["dataset"]["name"] == ds]
+        ref = agg[ds].get("supv_bd")
+        ref_sizes = sorted(ref) if ref else []
+        ref_acc = [float(np.mean(ref[s]["accuracy"])) for s in ref_sizes] if ref else []
+        for method in _methods(agg[ds]):
+            mr = [r for r in ds_runs if r["detector"]["method"] == method]
+            final = [r["rounds"][-1] for r in mr]
+            acc, fnr = [f["accuracy"] for f in final], [f["fnr"] for f in final]
+            size = float(np.mean([f["dataset_size"] for f in final]))
+            params = sorted({p for p in (detector_parameters(r) for r in mr) if p is not None})
+            row = {"dataset": ds, "method": method, "n_seeds": len(mr), "final_size": size,
+                   "accuracy_mean": _mean_std(acc)[0], "accuracy_std": _mean_std(acc)[1],
+                   "fnr_mean": _mean_std(fnr)[0], "fnr_std": _mean_std(fnr)[1],
+                   "equivalent_supv_bd_size": None, "equivalent_note": "",
+                   "detector_parameters": params[0] if len(params) == 1 else (params or None)}
+            if ref_sizes and method != "supv_bd":
+                eq, note = equivalent_size(ref_sizes, ref_acc, row["accuracy_mean"])
+                row["equivalent_supv_bd_size"], row["equivalent_note"] = eq, note
+            rows.append(row)
+    return rows
+
+
+def monotone_handling(agg: dict) -> dict:
+    """{(ds, method): (monotone?, number of drops)} of the mean handling success vs size (drops larger than
+    one point count)."""
+    out = {}
+    for ds, methods in agg.items():
+        for method, cells in methods.items():
+            sizes = [s for s in sorted(cells) if cells[s]["handling_success"]]
+            if len(sizes) < 2:
+                continue
+            mean = [np.mean(cells[s]["handling_success"]) for s in sizes]
+            drops = int(sum(b < a - 0.01 for a, b in zip(mean, mean[1:])))
+            out[(ds, method)] = (drops == 0, drops)
+    return out
+
+
+# ------------------------------------------------------------------------------------------- markdown
+def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) -> str:
+    lines = []
+    for ds in sorted(agg):
+        methods = agg[ds]
+        names = _methods(methods)
+        n_seeds = max(len({s for cell in methods[m].values() for s in cell["seed"]}) for m in names)
+        lines += [f"## {ds}", "", f"### Table 3 layout (mean ± std over {n_seeds} seeds, last round of each run)", "",
+                  "| | " + " | ".join(LABELS.get(m, m) for m in names) + " |", "|---|" + "---:|" * len(names)]
+        ds_rows = {r["method"]: r for r in rows if r["dataset"] == ds}
+
+        def eq(r):
+            if r["equivalent_supv_bd_size"] is None:
+                return "—"
+            return f"{r['equivalent_note']}{r['equivalent_supv_bd_size']:.0f}"
+
+        for title, f in (("data set size", lambda r: f"{r['final_size']:.0f}"),
+                         ("accuracy", lambda r: f"{100 * r['accuracy_mean']:.2f}% ± {100 * r['accuracy_std']:.2f}"),
+                         ("false negative rate", lambda r: f"{100 * r['fnr_mean']:.2f}% ± {100 * r['fnr_std']:.2f}"),
+                         ("equivalent supv_bd size", eq),
+                         ("detector parameters", lambda r: f"{r['detector_parameters']}")):
+            lines.append(f"| {title} | " + " | ".join(f(ds_rows[m]) if m in ds_rows else "—" for m in names) + " |")
+        ae = sorted({r["autoencoder"].get("n_parameters") for r in runs if r["dataset"]["name"] == ds} - {None})
+        lines += ["", "Equivalent size: the data set size supv_bd needs to reach the method's final mean accuracy "
+                  "(linear interpolation on supv_bd's mean accuracy curve; `>`: never reached within the sizes run, "
+                  "`≤`: reached at the first size). Autoencoder parameters: "
+                  f"{', '.join(str(a) for a in ae) or '—'}.", ""]
+        sizes = sorted({s for m in names for s in methods[m]})
+        for metric, title in (("accuracy", "accuracy"), ("fnr", "false negative rate")):
+            lines += [f"### {title} vs data set size (mean ± std over seeds; (k): seeds that reached it)", "",
+                      "| data set size | " + " | ".join(LABELS.get(m, m) for m in names) + " |",
+                      "|---:|" + "---:|" * len(names)]
+            for size in sizes:
+                cells = [_fmt(methods[m].get(size, {}).get(metric, []), n_seeds) for m in names]
+                lines.append(f"| {size} | " + " | ".join(cells) + " |")
+            lines.append("")
+        base = [v for m in names for c in methods[m].values() for v in c["majority_accuracy"]]
+        lines += [f"Majority-class accuracy of the test set: {np.mean(base):.4f}.", ""]
+        lines += [handling_markdown([r for r in runs if r["dataset"]["name"] == ds])]
+        lines += speed_markdown(ds, [r for r in runs if r["dataset"]["name"] == ds], agg)
+        lines += stability_markdown(ds, agg)
+    if bench:
+        lines += ["## Detection time per sample (bench/results.json)", "",
+                  f"Neural detector {bench['detector_us_per_sample_b4096']:.1f} µs at batch 4096 and "
+                  f"{bench['detector_us_per_sample_b1']:.0f} µs at batch 1; exact (decode + label, one core) "
+                  f"{bench['exact_ms_per_sample']:.1f} ms: {bench['neural_vs_exact_speedup']:.0f}× "
+                  f"(measured {bench.get('date', '?')}).", ""]
+    return "\n".join(lines)
 
 
 def handling_markdown(runs: list[dict]) -> str:
@@ -94,7 +270,7 @@ def handling_markdown(runs: list[dict]) -> str:
         keys = sorted((k for k in cells if k[0] == ds),
                       key=lambda k: (METHOD_ORDER.index(k[1]) if k[1] in METHOD_ORDER else 99, k[2]))
         n_in = cells[(ds, keys[0][1], "detector only")]["_n"]
-        lines += [f"### {ds}: collision handler, exact PD after handling ({n_in[0]} self-penetrating test inputs; "
+        lines += [f"### collision handler, exact PD after handling ({n_in[0]} self-penetrating test inputs; "
                   "mean ± std over seeds)", "",
                   "| method | handler | " + " | ".join(t for _, t in HANDLING_KEYS) + " |",
                   "|---|---|" + "---:|" * len(HANDLING_KEYS)]
@@ -111,56 +287,158 @@ def handling_markdown(runs: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def _fmt(values: list[float], n_seeds: int) -> str:
-    if not values:
-        return "—"
-    v = np.asarray(values)
-    s = f"{v.mean():.4f} ± {v.std(ddof=1):.4f}" if len(v) > 1 else f"{v.mean():.4f}"
-    return s if len(v) == n_seeds else f"{s} ({len(v)})"
+def speed_markdown(ds: str, runs: list[dict], agg: dict) -> list[str]:
+    c, source = label_cost_per_sample(runs)
+    lines = ["### cost (cumulative labeling + training + projection, mean over seeds)", ""]
+    if c is not None:
+        lines += [f"Labeling priced at {1e3 * c:.1f} ms per sample (from {source}), for every sample of D_c, "
+                  "whether this run labeled it or took it from the shared cache.", ""]
+    lines += ["| method | final size | cost (min) | accuracy |", "|---|---:|---:|---:|"]
+    for m in _methods(agg[ds]):
+        last = max(agg[ds][m])
+        cell = agg[ds][m][last]
+        lines.append(f"| {LABELS.get(m, m)} | {last} | {np.mean(cell['cost_seconds']) / 60:.1f} | "
+                     f"{np.mean(cell['accuracy']):.4f} |")
+    return lines + [""]
 
 
-def markdown(agg: dict) -> str:
-    lines = []
-    for ds, methods in sorted(agg.items()):
-        names = [m for m in METHOD_ORDER if m in methods] + sorted(set(methods) - set(METHOD_ORDER))
-        n_seeds = max(len({s for cell in methods[m].values() for s in cell["seed"]}) for m in names)
-        sizes = sorted({s for m in names for s in methods[m]})
-        for metric, title in (("accuracy", "accuracy"), ("fnr", "false negative rate")):
-            lines += [f"### {ds}: {title} (mean ± std over {n_seeds} seeds)", "",
-                      "| data set size | " + " | ".join(LABELS.get(m, m) for m in names) + " |",
-                      "|---:|" + "---:|" * len(names)]
-            for size in sizes:
-                cells = [_fmt(methods[m].get(size, {}).get(metric, []), n_seeds) for m in names]
-                lines.append(f"| {size} | " + " | ".join(cells) + " |")
-            lines.append("")
-        base = [v for m in names for cell in methods[m].values() for v in cell["majority_accuracy"]]
-        lines += [f"Majority-class accuracy of the test set: {np.mean(base):.4f}.", ""]
-    return "\n".join(lines)
+def stability_markdown(ds: str, agg: dict) -> list[str]:
+    lines = ["### stability (spread across seeds; handling success vs size)", "",
+             "| method | seeds | largest accuracy std over sizes | handling success monotone in size |",
+             "|---|---:|---:|---|"]
+    mono = monotone_handling(agg)
+    for m in _methods(agg[ds]):
+        cells = agg[ds][m]
+        stds = [np.std(c["accuracy"], ddof=1) for c in cells.values() if len(c["accuracy"]) > 1]
+        n = max(len(c["seed"]) for c in cells.values())
+        mo = mono.get((ds, m))
+        mtxt = "— (no per-round handling; `handler.eval_every_round=true`)" if mo is None else \
+            ("yes" if mo[0] else f"no ({mo[1]} drop{'s' if mo[1] > 1 else ''} > 1 point)")
+        lines.append(f"| {LABELS.get(m, m)} | {n} | {max(stds) if stds else float('nan'):.4f} | {mtxt} |")
+    return lines + [""]
 
 
-def plot(agg: dict, metric: str, path: Path) -> None:
+# ---------------------------------------------------------------------------------------------- charts
+def _plt():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    datasets = sorted(agg)
+    return plt
+
+
+def plot(agg: dict, metric: str, path: Path) -> bool:
+    """``metric`` vs data set size per method, mean ± std band, one panel per data set; False if no data."""
+    datasets = [ds for ds in sorted(agg) if any(c[metric] for m in agg[ds].values() for c in m.values())]
+    if not datasets:
+        return False
+    plt = _plt()
     fig, axes = plt.subplots(1, len(datasets), figsize=(4.5 * len(datasets), 3.4), squeeze=False)
     for ax, ds in zip(axes[0], datasets):
-        for m in [m for m in METHOD_ORDER if m in agg[ds]] + sorted(set(agg[ds]) - set(METHOD_ORDER)):
-            sizes = sorted(agg[ds][m])
+        for m in _methods(agg[ds]):
+            sizes = [s for s in sorted(agg[ds][m]) if agg[ds][m][s][metric]]
+            if not sizes:
+                continue
             mean = np.array([np.mean(agg[ds][m][s][metric]) for s in sizes])
             std = np.array([np.std(agg[ds][m][s][metric]) for s in sizes])
             ax.plot(sizes, mean, marker="o", label=LABELS.get(m, m))
             ax.fill_between(sizes, mean - std, mean + std, alpha=0.2)
         ax.set_title(ds)
         ax.set_xlabel("data set size |D_c|")
-        ax.set_ylabel({"accuracy": "test accuracy", "fnr": "false negative rate"}[metric])
+        ax.set_ylabel({"accuracy": "test accuracy", "fnr": "false negative rate",
+                       "handling_success": "handling success rate"}[metric])
         ax.grid(alpha=0.3)
         ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+    return True
+
+
+def plot_speed(agg: dict, bench: dict | None, path: Path) -> None:
+    """Accuracy vs cumulative cost per method (one panel per data set) + neural vs exact time per sample."""
+    plt = _plt()
+    datasets = sorted(agg)
+    n = len(datasets) + (1 if bench else 0)
+    fig, axes = plt.subplots(1, n, figsize=(4.5 * n, 3.4), squeeze=False)
+    for ax, ds in zip(axes[0], datasets):
+        for m in _methods(agg[ds]):
+            sizes = sorted(agg[ds][m])
+            cost = np.array([np.mean(agg[ds][m][s]["cost_seconds"]) for s in sizes]) / 60
+            acc = np.array([np.mean(agg[ds][m][s]["accuracy"]) for s in sizes])
+            ax.plot(cost, acc, marker="o", label=LABELS.get(m, m))
+        ax.set_title(f"{ds}: accuracy vs cost")
+        ax.set_xlabel("cumulative labeling + training time (min)")
+        ax.set_ylabel("test accuracy")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    if bench:
+        ax = axes[0][-1]
+        names = ["neural\nbatch 4096", "neural\nbatch 1", "exact\n(decode + label)"]
+        vals = [bench["detector_us_per_sample_b4096"], bench["detector_us_per_sample_b1"],
+                1e3 * bench["exact_ms_per_sample"]]
+        bars = ax.bar(names, vals, color=["C2", "C1", "C3"])
+        ax.set_yscale("log")
+        ax.set_ylabel("µs per sample (log)")
+        ax.set_title(f"detection time: {bench['neural_vs_exact_speedup']:.0f}× at batch 4096")
+        for b, v in zip(bars, vals):
+            ax.annotate(f"{v:.3g}", (b.get_x() + b.get_width() / 2, v), ha="center", va="bottom", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_stability(agg: dict, runs: list[dict], path: Path) -> None:
+    """Per data set: accuracy std across seeds vs size per method; handling success vs size per seed."""
+    plt = _plt()
+    datasets = sorted(agg)
+    fig, axes = plt.subplots(2, len(datasets), figsize=(4.5 * len(datasets), 6.4), squeeze=False)
+    for j, ds in enumerate(datasets):
+        ax = axes[0][j]
+        for m in _methods(agg[ds]):
+            sizes = [s for s in sorted(agg[ds][m]) if len(agg[ds][m][s]["accuracy"]) > 1]
+            ax.plot(sizes, [np.std(agg[ds][m][s]["accuracy"], ddof=1) for s in sizes], marker="o",
+                    label=LABELS.get(m, m))
+        ax.set_title(f"{ds}: spread across seeds")
+        ax.set_xlabel("data set size |D_c|")
+        ax.set_ylabel("std of test accuracy")
+        ax.grid(alpha=0.3)
+        ax.legend()
+        ax = axes[1][j]
+        any_h = False
+        for i, m in enumerate(_methods(agg[ds])):
+            for run in (r for r in runs if r["dataset"]["name"] == ds and r["detector"]["method"] == m):
+                pts = [(r["dataset_size"], r["handling"]["success_rate"]) for r in run["rounds"] if r.get("handling")]
+                if pts:
+                    any_h = True
+                    x, y = zip(*pts)
+                    ax.plot(x, y, marker=".", color=f"C{i}", alpha=0.7,
+                            label=f"{LABELS.get(m, m)}" if run is not None else None)
+        if any_h:
+            handles, labels = ax.get_legend_handles_labels()
+            uniq = dict(zip(labels, handles))
+            ax.legend(uniq.values(), uniq.keys())
+        else:
+            ax.text(0.5, 0.5, "no per-round handling\n(handler.eval_every_round=true)", ha="center", va="center",
+                    transform=ax.transAxes)
+        ax.set_title(f"{ds}: handling success per seed")
+        ax.set_xlabel("data set size |D_c|")
+        ax.set_ylabel("handling success rate")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def load_bench(path: Path | None) -> dict | None:
+    path = path or ROOT / "bench" / "results.json"
+    if not path.is_file():
+        return None
+    b = json.loads(path.read_text())
+    keys = ("detector_us_per_sample_b1", "detector_us_per_sample_b4096", "exact_ms_per_sample",
+            "neural_vs_exact_speedup")
+    return b if all(k in b for k in keys) else None
 
 
 @report_user_errors
@@ -168,19 +446,35 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m experiments.report", description=__doc__.splitlines()[0])
     parser.add_argument("dirs", nargs="+", type=Path, help="run or multirun directories")
     parser.add_argument("--out", type=Path, default=None, help="output directory (default: the first DIR)")
+    parser.add_argument("--bench", type=Path, default=None,
+                        help="benchmark results for the detection-time panel (default: bench/results.json)")
     args = parser.parse_args(argv)
     runs = find_runs(args.dirs)
     agg = aggregate(runs)
+    rows = table3(runs, agg)
+    bench = load_bench(args.bench)
     out = args.out or args.dirs[0]
     out.mkdir(parents=True, exist_ok=True)
-    text = markdown(agg) + "\n" + handling_markdown(runs)
+    text = markdown(runs, agg, rows, bench)
     (out / "report.md").write_text(text)
+    with open(out / "table3.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (json.dumps(v) if isinstance(v, list) else v) for k, v in r.items()})
     plain = {ds: {m: {str(s): dict(c) for s, c in sizes.items()} for m, sizes in ms.items()} for ds, ms in agg.items()}
-    (out / "report.json").write_text(json.dumps(plain, indent=2))
+    (out / "report.json").write_text(json.dumps({"table3": rows, "rounds": plain}, indent=2))
+    charts = ["accuracy.png", "fnr.png"]
     plot(agg, "accuracy", out / "accuracy.png")
     plot(agg, "fnr", out / "fnr.png")
+    if plot(agg, "handling_success", out / "handling.png"):
+        charts.append("handling.png")
+    plot_speed(agg, bench, out / "speed.png")
+    plot_stability(agg, runs, out / "stability.png")
+    charts += ["speed.png", "stability.png"]
     print(text)
-    print(f"{len(runs)} runs; wrote {out / 'report.md'}, accuracy.png, fnr.png, report.json", file=sys.stderr)
+    print(f"{len(runs)} runs; wrote {out / 'report.md'}, table3.csv, report.json, {', '.join(charts)}",
+          file=sys.stderr)
 
 
 if __name__ == "__main__":

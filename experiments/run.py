@@ -87,8 +87,8 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         z_user, pd_user = torch.as_tensor(test.z[pick]), test.pd[pick]
 
         def handling(net):
-            return evaluate_handler(net, oracle, z_user, pd_user, settings, int(cfg.handler.batch_size),
-                                    list(cfg.handler.verify_margins))[0]
+            # per round the detector alone (paper Fig. 5); the verified variant is for the final detector
+            return evaluate_handler(net, oracle, z_user, pd_user, settings, int(cfg.handler.batch_size))[0]
 
         det = train_detector(space, oracle, cfg.detector, cfg.method, ae_report["cache_key"], int(cfg.seed),
                              cfg.paths.cache_dir, run_dir, logger,

@@ -93,3 +93,36 @@ def test_missing_dataset_is_one_line_error(tmp_path):
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and "swing: data set not found" in lines[0], lines
+
+
+def test_tiny_multirun_then_report(tmp_path, scape_dir):
+    """A real Hydra multirun (tiny preset, two methods x two seeds, two jobs at a time with the joblib launcher,
+    handler evaluated every round), then the
+    report: the Table 3 layout (Markdown + CSV) and all charts."""
+    sweep = tmp_path / "sweep"
+    env = {k: v for k, v in __import__("os").environ.items() if k not in ("HYDRA_FULL_ERROR",)}
+    proc = subprocess.run(
+        [sys.executable, "-m", "experiments.run", "-m", "dataset=scape", "autoencoder=tiny", "detector=tiny",
+         "method=supv_bd,active", "seed=0,1", "hydra/launcher=parallel", "handler.n_inputs=8",
+         "handler.eval_every_round=true", "handler.verify_margins=[2.0]", "n_example_meshes=0",
+         "labeling.pool.workers=0", "labeling.pool.progress=false", f"paths.data_dir={scape_dir.parent}",
+         f"paths.cache_dir={tmp_path}/cache",
+         f"hydra.sweep.dir={sweep}"],
+        cwd=ROOT, capture_output=True, text=True, timeout=600, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    runs = sorted(p.parent for p in sweep.rglob("metrics.json"))
+    assert len(runs) == 4
+    metrics = [json.loads((r / "metrics.json").read_text()) for r in runs]
+    # the sweep shares one autoencoder and one test set: trained / labeled by the first job only
+    assert sum(not m["autoencoder"]["from_cache"] for m in metrics) == 1
+    assert len(list((tmp_path / "cache" / "collision").glob("*/test_s*.h5"))) == 1
+    assert all(r.get("handling") for m in metrics for r in m["rounds"]), "handling after every round"
+    proc = subprocess.run([sys.executable, "-m", "experiments.report", str(sweep)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    text = (sweep / "report.md").read_text()
+    assert "Table 3 layout" in text and "equivalent supv_bd size" in text and "detector parameters" in text
+    rows = list(__import__("csv").DictReader(open(sweep / "table3.csv")))
+    assert [r["method"] for r in rows] == ["supv_bd", "active"] and rows[0]["n_seeds"] == "2"
+    for chart in ("accuracy.png", "fnr.png", "handling.png", "speed.png", "stability.png"):
+        assert (sweep / chart).stat().st_size > 10_000, chart

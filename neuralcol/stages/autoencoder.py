@@ -16,6 +16,7 @@ from typing import NamedTuple
 import lightning as L
 import numpy as np
 import torch
+from filelock import FileLock
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 from scipy.cluster.vq import kmeans2
@@ -232,14 +233,19 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
     train_keys = {k: v for k, v in ae.items() if k not in ("progress_bar", "accelerator", "val_every")}
     key = autoencoder_cache_key(ds, feats.reference_index, feats.acap.settings, train_keys, lat, seed)
     path = Path(cache_dir) / "autoencoders" / key / "latent_space.pt" if cache_dir else None
-    if path is not None and path.is_file():
-        try:
-            space = LatentSpace.load(path)
-            return space, {**space.meta, "cache_key": key}, True
-        except Exception:  # a broken cache entry is retrained, not fatal
-            path.unlink()
-    space, report = train_latent_space(ds, feats, ae, lat, seed, logger)
-    if path is not None:
+    if path is None:
+        space, report = train_latent_space(ds, feats, ae, lat, seed, logger)
+        return space, {**report, "cache_key": key}, False
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # one trainer per cache entry: parallel sweep jobs (hydra/launcher=parallel) wait for the first one
+    with FileLock(str(path.parent / ".lock")):
+        if path.is_file():
+            try:
+                space = LatentSpace.load(path)
+                return space, {**space.meta, "cache_key": key}, True
+            except Exception:  # a broken cache entry is retrained, not fatal
+                path.unlink()
+        space, report = train_latent_space(ds, feats, ae, lat, seed, logger)
         space.save(path)
         (path.parent / "report.json").write_text(json.dumps({k: v for k, v in report.items()
                                                              if k not in ("train_index", "val_index")}, indent=2))

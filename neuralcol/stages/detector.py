@@ -150,7 +150,8 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
                 "test_set": {"n": len(test.z), "seed": int(det["test_seed"]),
                              "base_rate": float(np.mean(test.collides)), "labeled_now": test_labeled,
                              "label_seconds": test_label_s, "seconds": test_s},
-                "pd_unit": pd_unit}
+                "pd_unit": pd_unit, "n_parameters": int(sum(p.numel() for p in net.parameters())),
+                "net": {k: det["net"][k] for k in ("state_dim", "hidden")}}
 
     L.seed_everything(seed, workers=False, verbose=False)
     net = build_detector(space, det)
