@@ -282,6 +282,147 @@ def bench_neural(ctx: dict) -> dict:
     return out
 
 
+def _compose(overrides: list[str]):
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        return compose(config_name="config", overrides=overrides)
+
+
+def bench_training(ctx: dict) -> dict:
+    """Seconds per epoch: the SCAPE autoencoder (CPU preset) and the detector (CPU preset, 10 000 rows).
+
+    Each is timed at two epoch counts; the per-epoch figure is the slope, so set-up costs (Trainer, data,
+    partition) cancel."""
+    import tempfile
+
+    from lightning.pytorch import Trainer
+
+    from neuralcol.data.collision_datamodule import CollisionDataModule
+    from neuralcol.data.collision_store import CollisionStore
+    from neuralcol.data.features import dataset_features
+    from neuralcol.lit.detector import DetectorLitModule
+    from neuralcol.stages.autoencoder import train_latent_space
+    from neuralcol.stages.detector import build_detector
+    from neuralcol.utils.config import as_dict
+
+    cfg = _compose(["dataset=scape", f"paths.data_dir={SCAPE_DIR.parent}", "autoencoder.progress_bar=false",
+                    "autoencoder.val_every=1000000"])
+    ds = ctx["scape"]
+    acap_cfg = as_dict(cfg.acap)
+    norm_cfg = acap_cfg.pop("normalizer")
+    feats = dataset_features(ds, 0, acap_cfg, norm_cfg)
+    ae = as_dict(cfg.autoencoder)
+    lo_e, hi_e = (5, 15) if ctx["quick"] else (10, 40)
+
+    def train_ae(epochs: int):
+        a = {**ae, "level1": {**ae["level1"], "epochs": epochs}, "level2": {**ae["level2"], "epochs": epochs}}
+        return train_latent_space(ds, feats, a, as_dict(cfg.dataset.latent), 0)
+
+    reps = max(2, ctx["reps"] // 3)
+    t_lo = repeat(lambda: train_ae(lo_e), reps, warmup=0)
+    t_hi = repeat(lambda: train_ae(hi_e), reps, warmup=0)
+    # per level-epoch: both levels run `epochs` epochs
+    ae_epoch = [(b - a) / (2 * (hi_e - lo_e)) for a, b in zip(t_lo, t_hi)]
+    space, _ = train_ae(2)
+    # detector: 10 000 random rows of the SCAPE latent box, the CPU preset's network, batch and loss
+    det = as_dict(cfg.detector)
+    n = 10_000
+    gen = np.random.default_rng(0)
+    with tempfile.TemporaryDirectory() as tmp:
+        store = CollisionStore(Path(tmp) / "dc.h5", space.dim, space.n_parts)
+        pd_sub = gen.normal(0, 0.01, size=(n, space.n_parts))
+        pd = pd_sub.max(1)
+        store.append(space.sample(n).numpy(), pd, pd_sub, pd > 0, np.where(pd > 0, 0, 1), 0, np.zeros(n))
+        store.close()
+        dm = CollisionDataModule(Path(tmp) / "dc.h5", space.dim, space.n_parts, int(det["batch_size"]), 0.01,
+                                 float(det["targets"]["pd_clip"]))
+        dm.refresh()
+        loss = det["loss"]
+
+        def train_det(epochs: int):
+            net = build_detector(space, det)
+            module = DetectorLitModule(net, lr=float(det["lr"]), w_pd=loss["w_pd"], w_pdsum=loss["w_pdsum"],
+                                       w_r=loss["w_r"], w_ce=loss["w_ce"], w_b=1.0, margin=loss["margin"],
+                                       temperature=loss["temperature"])
+            Trainer(max_epochs=epochs, accelerator="cpu", logger=False, enable_checkpointing=False,
+                    enable_progress_bar=False, enable_model_summary=False).fit(module, datamodule=dm)
+
+        d_lo, d_hi = (1, 3) if ctx["quick"] else (2, 6)
+        t_dlo = repeat(lambda: train_det(d_lo), reps, warmup=0)
+        t_dhi = repeat(lambda: train_det(d_hi), reps, warmup=0)
+        dm.store.close()
+    det_epoch = [(b - a) / (d_hi - d_lo) for a, b in zip(t_dlo, t_dhi)]
+    ctx["notes"]["training"] = (f"autoencoder: SCAPE, CPU preset, slope between {lo_e} and {hi_e} epochs per level "
+                                f"(seconds per epoch of one level); detector: CPU preset on {n} rows (80 % trained, "
+                                f"20 % validated each epoch), slope between {d_lo} and {d_hi} epochs")
+    return {"ae_epoch_s": summarize(ae_epoch), "detector_epoch_s_per_10k": summarize(det_epoch)}
+
+
+def _tree_rss_mb(pid: int) -> float:
+    """Resident memory of a process and its descendants (Linux /proc), MB."""
+    total, stack = 0, [pid]
+    while stack:
+        p = stack.pop()
+        try:
+            with open(f"/proc/{p}/status") as f:
+                for line in f:
+                    if line.startswith("VmRSS:"):
+                        total += int(line.split()[1])
+                        break
+            with open(f"/proc/{p}/task/{p}/children") as f:
+                stack += [int(c) for c in f.read().split()]
+        except (FileNotFoundError, ProcessLookupError):
+            continue
+    return total / 1024
+
+
+def bench_memory(ctx: dict) -> dict:
+    """Peak resident memory (this process + its 2 workers) while labeling decoded SCAPE samples, and the size
+    of the HDF5 D_c per 10 000 rows."""
+    import tempfile
+    import threading
+
+    from hydra.utils import instantiate
+
+    from experiments.handle import load_run
+    from neuralcol.active.oracle import LatentOracle
+    from neuralcol.collision.pool import LabelPool
+    from neuralcol.data.collision_store import CollisionStore
+
+    cfg, space, _ = load_run(_neural_run(ctx))
+    labeler = instantiate(cfg.labeling.labeler)(space.faces.numpy(), space.rest_vertices.numpy(),
+                                                partition=space.partition.numpy())
+    n = 2000 if ctx["quick"] else 10_000
+    z = space.sample(n, generator=torch.Generator().manual_seed(1))
+    peak, stop = [0.0], threading.Event()
+
+    def watch():
+        while not stop.is_set():
+            peak[0] = max(peak[0], _tree_rss_mb(os.getpid()))
+            time.sleep(0.1)
+
+    before = _tree_rss_mb(os.getpid())
+    t = threading.Thread(target=watch, daemon=True)
+    t.start()
+    t0 = time.perf_counter()
+    with LabelPool(labeler, workers=2, progress=False) as pool:
+        lab = LatentOracle(space, pool)(z, desc="bench")
+    seconds = time.perf_counter() - t0
+    stop.set()
+    t.join()
+    with tempfile.TemporaryDirectory() as tmp:
+        store = CollisionStore(Path(tmp) / "dc.h5", space.dim, space.n_parts)
+        store.append(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset, 0, np.zeros(len(lab.z)))
+        store.close()
+        size_mb = (Path(tmp) / "dc.h5").stat().st_size / 2 ** 20
+    ctx["notes"]["memory"] = (f"{n} uniform SCAPE codes decoded and labeled by LabelPool(workers=2) in "
+                              f"{seconds:.0f} s; RSS of this process and its workers sampled every 0.1 s "
+                              f"({before:.0f} MB before labeling)")
+    return {"label_peak_rss_mb": summarize([peak[0]]), "dc_mb_per_10k": summarize([size_mb * 10_000 / n]),
+            "label_oracle_per_s": summarize([n / seconds])}
+
+
 def _ratio(a: dict, b: dict) -> dict:
     """Ratio of two medians measured in the same run (min/max: the ratio of the extremes)."""
     return {"median": a["median"] / b["median"], "min": a["min"] / b["max"], "max": a["max"] / b["min"],
@@ -289,7 +430,8 @@ def _ratio(a: dict, b: dict) -> dict:
 
 
 BENCHES: dict[str, Callable[[dict], dict]] = {"acap": bench_acap, "labeler": bench_labeler, "pool": bench_pool,
-                                              "neural": bench_neural}
+                                              "neural": bench_neural, "training": bench_training,
+                                              "memory": bench_memory}
 
 
 def write_markdown(results: dict, path: Path) -> None:

@@ -34,10 +34,12 @@ from neuralcol.stages.detector import load_detector, shared_test_set, train_dete
 from neuralcol.stages.handling import alm_settings, evaluate_handler, export_handling
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.seeding import seed_everything
+from neuralcol.utils.validate import validate_run_config
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
     """Run the pipeline for ``cfg`` and write results into ``run_dir``; returns the metrics dict."""
+    validate_run_config(cfg)  # every settings error at once, before any work
     seed_everything(cfg.seed if cfg.seed is not None else None)
     t0 = time.perf_counter()
     ds = instantiate(cfg.dataset.source)

@@ -29,8 +29,7 @@ from neuralcol.lit.detector import DetectorLitModule
 from neuralcol.metrics.detection import detection_metrics
 from neuralcol.nn.detector import CollisionDetector
 from neuralcol.utils.config import as_dict
-
-METHODS = ("supv", "supv_bd", "active")
+from neuralcol.utils.validate import METHODS  # one list of method names
 
 
 def samples_cache_dir(cache_dir: str | Path, latent_key: str, labeler) -> Path:

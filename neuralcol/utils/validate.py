@@ -1,0 +1,74 @@
+"""Check a run's configuration before any work starts.
+
+Every problem found is reported at once, each naming the key, its value and what is allowed, as one
+:class:`~neuralcol.errors.UserInputError` (printed as one line by the entry points).
+"""
+
+from __future__ import annotations
+
+from omegaconf import DictConfig, OmegaConf
+
+from neuralcol.errors import UserInputError
+
+METHODS = ("supv", "supv_bd", "active")
+
+
+def _get(cfg, key: str):
+    return OmegaConf.select(cfg, key, default=None)
+
+
+def config_problems(cfg: DictConfig) -> list[str]:
+    """Problems of a composed ``experiments.run`` config, as ``key=value: rule`` strings (empty: fine)."""
+    problems: list[str] = []
+
+    def need(key: str, ok, rule: str):
+        value = _get(cfg, key)
+        try:
+            good = value is not None and ok(value)
+        except TypeError:
+            good = False
+        if not good:
+            problems.append(f"{key}={value!r}: {rule}")
+
+    is_int = lambda v: isinstance(v, int) and not isinstance(v, bool)  # noqa: E731
+    need("method.name", lambda v: v in METHODS, f"use one of {', '.join(METHODS)}")
+    for key in ("detector.n_init", "detector.n_aug", "detector.test_size", "detector.epochs",
+                "detector.finetune_epochs", "detector.batch_size", "detector.finetune_batch_size",
+                "detector.newton.max_iter", "handler.batch_size", "autoencoder.level1.epochs",
+                "autoencoder.level2.epochs", "dataset.latent.n_components", "dataset.latent.level2_dim",
+                "detector.net.state_dim", "detector.net.hidden"):
+        need(key, lambda v: is_int(v) and v >= 1, "must be an integer >= 1")
+    for key in ("detector.max_rounds", "handler.n_inputs", "seed", "autoencoder_seed"):
+        need(key, lambda v: is_int(v) and v >= 0, "must be an integer >= 0")
+    if _get(cfg, "method.name") == "active" and _get(cfg, "method.projected_fraction") == 0.5:
+        need("detector.n_aug", lambda v: v % 2 == 0, "must be even for method=active (half of each round's "
+             "samples are projected, half uniform)")
+    for key in ("detector.lr", "detector.finetune_lr", "detector.newton.eps_z", "detector.newton.max_step",
+                "labeling.labeler.clearance_cap", "labeling.labeler.boundary_eps", "labeling.labeler.cell_factor",
+                "detector.targets.pd_clip"):
+        need(key, lambda v: float(v) > 0, "must be > 0")
+    need("labeling.labeler.touch_tol", lambda v: float(v) >= 0, "must be >= 0")
+    need("method.projected_fraction", lambda v: 0 <= float(v) <= 1, "must lie in [0, 1]")
+    need("labeling.pool.workers", lambda v: is_int(v) and v >= 0, "must be an integer >= 0 (0 or 1: in-process)")
+    margin = _get(cfg, "handler.alm.margin")
+    margins = _get(cfg, "handler.verify_margins")
+    if margins is not None:
+        m = list(margins)
+        if any(float(x) <= float(margin or 0) for x in m) or m != sorted(m):
+            problems.append(f"handler.verify_margins={m}: must increase and exceed handler.alm.margin={margin}")
+    if _get(cfg, "handler.alm") is not None:
+        from neuralcol.handling.alm import ALMSettings
+
+        try:
+            ALMSettings(**OmegaConf.to_container(cfg.handler.alm, resolve=True))
+        except (TypeError, ValueError) as e:
+            problems.append(f"handler.alm: {e}")
+    return problems
+
+
+def validate_run_config(cfg: DictConfig) -> None:
+    """Raise one :class:`UserInputError` listing every problem of ``cfg`` (nothing if it is fine)."""
+    problems = config_problems(cfg)
+    if problems:
+        raise UserInputError("bad configuration: " + "; ".join(problems)
+                             + " (override on the command line, e.g. detector.n_aug=2000)")

@@ -1,0 +1,60 @@
+"""Configuration errors are caught before any work, each naming the key, its value and the rule."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from neuralcol.errors import UserInputError
+from neuralcol.utils.validate import config_problems, validate_run_config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _compose(overrides):
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        return compose(config_name="config", overrides=overrides)
+
+
+@pytest.mark.parametrize("preset", ["", "experiment=cpu_scape", "experiment=paper_scape", "detector=tiny",
+                                    "method=supv", "method=supv_bd"])
+def test_shipped_configs_are_valid(preset):
+    assert config_problems(_compose([preset] if preset else [])) == []
+
+
+@pytest.mark.parametrize("override, key", [
+    ("method.name=foo", "method.name='foo': use one of supv, supv_bd, active"),
+    ("detector.n_init=-5", "detector.n_init=-5: must be an integer >= 1"),
+    ("detector.n_aug=1001", "detector.n_aug=1001: must be even"),
+    ("labeling.labeler.boundary_eps=0", "labeling.labeler.boundary_eps=0: must be > 0"),
+    ("detector.newton.eps_z=-1e-7", "detector.newton.eps_z=-1e-07: must be > 0"),
+    ("handler.n_inputs=-1", "handler.n_inputs=-1: must be an integer >= 0"),
+    ("handler.verify_margins=[2.0,1.0]", "handler.verify_margins=[2.0, 1.0]: must increase"),
+    ("handler.alm.mu0=0", "handler.alm: handler settings"),
+])
+def test_bad_settings_are_named(override, key):
+    problems = config_problems(_compose([override]))
+    assert any(p.startswith(key) for p in problems), problems
+    with pytest.raises(UserInputError, match="bad configuration"):
+        validate_run_config(_compose([override]))
+
+
+def test_several_problems_reported_together():
+    problems = config_problems(_compose(["detector.n_init=0", "detector.lr=-1"]))
+    assert len(problems) == 2
+
+
+def test_bad_config_is_one_line_before_any_work(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "experiments.run", "detector.n_aug=999",
+                           f"paths.output_dir={tmp_path}/out", f"paths.cache_dir={tmp_path}/cache"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120,
+                          env={k: v for k, v in __import__("os").environ.items()
+                               if k not in ("HYDRA_FULL_ERROR", "NEURALCOL_DEBUG")})
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "detector.n_aug=999: must be even" in lines[0], lines
+    assert not (tmp_path / "cache").exists(), "no work started"
