@@ -9,6 +9,7 @@ with min and max, and ratios are taken from numbers measured in the same run. Re
 from __future__ import annotations
 
 import argparse
+import copy
 import datetime as dt
 import json
 import os
@@ -243,7 +244,7 @@ def bench_neural(ctx: dict) -> dict:
                                              for k, v in out["detector_us_per_sample_b4096"].items()})
     # Newton projection onto the 0.5 level set (float64, as in active learning), batched
     newton_cfg = dict(cfg.detector.newton)
-    net64 = __import__("copy").deepcopy(net).double().eval()
+    net64 = copy.deepcopy(net).double().eval()
     zn = z[:512 if quick else 1024].double()
     lo, hi = space.box_lo.double(), space.box_hi.double()
     iters = []
