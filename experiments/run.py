@@ -4,8 +4,9 @@ Runs the pipeline on the configured data set (default: the procedural hand): loa
 compute ACAP features, check the ACAP round trip, label the meshes exactly (self-intersection and PD), train
 (or load from the cache) the bilevel autoencoder, picture its sub-domains, train the neural collision
 detector with the configured method (``method=supv|supv_bd|active``) round by round, export example meshes,
-and write ``metrics.json`` into the Hydra run directory. Re-running with the same ``hydra.run.dir`` resumes
-an interrupted run after its last finished round.
+and write ``metrics.json`` into the Hydra run directory. Re-running the same command (or with the same
+``hydra.run.dir``) resumes an interrupted run after its last finished round (``resume=false`` starts afresh;
+see ``neuralcol/utils/resume.py`` and ``docs/reliability.md``).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import hydra
 import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
@@ -33,6 +35,7 @@ from neuralcol.stages.autoencoder import train_or_load_latent_space
 from neuralcol.stages.detector import load_detector, shared_test_set, train_detector
 from neuralcol.stages.handling import alm_settings, evaluate_handler, export_handling
 from neuralcol.utils.cli import report_user_errors
+from neuralcol.utils.resume import RunDirLock, find_interrupted_run
 from neuralcol.utils.seeding import seed_everything
 from neuralcol.utils.validate import validate_run_config
 
@@ -173,8 +176,18 @@ def main(cfg: DictConfig) -> None:
     # keep the terminal readable: Lightning's hardware banner and tips, a third-party deprecation warning
     logging.getLogger("lightning.pytorch.utilities.rank_zero").setLevel(logging.WARNING)
     warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*")
-    run_dir = Path(HydraConfig.get().runtime.output_dir)
-    metrics = run(cfg, run_dir)
+    hc = HydraConfig.get()
+    run_dir = Path(hc.runtime.output_dir)
+    explicit_dir = any(o.startswith(("hydra.run.dir=", "hydra.sweep.dir=")) for o in hc.overrides.hydra)
+    if cfg.resume and not explicit_dir:  # (an explicit directory resumes in place)
+        earlier = find_interrupted_run(run_dir, multirun=hc.mode == RunMode.MULTIRUN)
+        if earlier is not None:
+            print(f"resuming the interrupted run in {earlier} (same overrides, unfinished); resume=false starts "
+                  "afresh", flush=True)
+            (run_dir / "resumed_in.txt").write_text(f"{earlier}\n")
+            run_dir = earlier
+    with RunDirLock(run_dir):
+        metrics = run(cfg, run_dir)
     print_summary(metrics, run_dir)
 
 

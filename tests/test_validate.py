@@ -58,3 +58,29 @@ def test_bad_config_is_one_line_before_any_work(tmp_path):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "detector.n_aug=999: must be even" in lines[0], lines
     assert not (tmp_path / "cache").exists(), "no work started"
+
+
+def test_unknown_data_set_names_the_allowed_values(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "experiments.run", "dataset=scap",
+                           f"paths.output_dir={tmp_path}/out", f"paths.cache_dir={tmp_path}/cache"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    assert "Could not find 'dataset/scap'" in proc.stderr and "Available options in 'dataset'" in proc.stderr
+    assert "\tscape\n" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "cache").exists(), "no work started"
+
+
+def test_missing_checkpoint_is_one_line(tmp_path, capsys, monkeypatch):
+    from experiments.handle import main as handle_main
+
+    monkeypatch.delenv("HYDRA_FULL_ERROR", raising=False)
+    monkeypatch.delenv("NEURALCOL_DEBUG", raising=False)
+    (tmp_path / "run" / ".hydra").mkdir(parents=True)
+    (tmp_path / "run" / ".hydra" / "config.yaml").write_text("seed: 0\n")
+    (tmp_path / "run" / "metrics.json").write_text("{}")
+    with pytest.raises(SystemExit) as exit_:
+        handle_main([str(tmp_path / "run"), str(tmp_path / "in.obj")])
+    assert exit_.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "detector.pt: missing" in lines[0] and "finished" in lines[0], lines

@@ -23,6 +23,7 @@ import numpy as np
 from neuralcol.active.acquisition import UniformAcquisition
 from neuralcol.active.stopping import should_stop
 from neuralcol.data.collision_datamodule import CollisionDataModule
+from neuralcol.utils.faults import fault_point
 
 
 @dataclass(frozen=True)
@@ -142,6 +143,7 @@ class DataRounds(L.Callback):
             pl_module.set_lr(self.schedule().lr)
 
     def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        fault_point("train_epoch")
         self._epoch_t0 = time.perf_counter()
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:

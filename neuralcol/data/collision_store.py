@@ -22,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from neuralcol.errors import UserInputError
+from neuralcol.utils.faults import fault_point
 
 ORIGIN_UNIFORM, ORIGIN_PROJECTED = 0, 1
 VAL_EVERY = 5  # row ids with id % 5 == 4 are validation rows (20 %)
@@ -126,6 +127,7 @@ class CollisionStore:
                 ds.resize(start + b, axis=0)
             ds[start:start + b] = np.asarray(cols[name], dtype=dtype)
         self._h5.flush()
+        fault_point("store_append")  # crash tests: rows on disk, not yet committed
         self._h5.attrs["committed"] = start + b
         self._h5.flush()
         return ids

@@ -111,8 +111,14 @@ def check_faces(faces: np.ndarray, n_vertices: int, where: str) -> EdgeTopology:
     return topo
 
 
+# coordinates beyond these fail check_vertices: squared lengths overflow float32 (1e19^2 > 3.4e38), and a mesh
+# far from the origin relative to its size loses its detail in float32 (7 significant digits)
+MAX_COORDINATE = 1.0e12
+MAX_OFFSET_RATIO = 1.0e4
+
+
 def check_vertices(vertices: np.ndarray, faces: np.ndarray, where: str, rel_area_tol: float) -> None:
-    """Validate vertex coordinates of one mesh: finite, and no zero-area face.
+    """Validate vertex coordinates of one mesh: finite, not huge or far off the origin, no zero-area face.
 
     Args:
         vertices: (V, 3) float.
@@ -128,6 +134,18 @@ def check_vertices(vertices: np.ndarray, faces: np.ndarray, where: str, rel_area
         raise MeshFileError(
             f"{where}: vertex {bad[0]} has non-finite coordinates {vertices[bad[0]].tolist()} "
             f"({len(bad)} such vertices); fix or drop this mesh"
+        )
+    extent = float(np.abs(vertices).max())
+    diag = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+    if extent > MAX_COORDINATE:
+        raise MeshFileError(
+            f"{where}: coordinates reach {extent:.3g} (> {MAX_COORDINATE:.0e}); squared lengths overflow in float32: "
+            "rescale the data set (e.g. to meters or to a unit bounding box)"
+        )
+    if extent > MAX_OFFSET_RATIO * diag:
+        raise MeshFileError(
+            f"{where}: the mesh lies {extent:.3g} from the origin but is only {diag:.3g} across; float32 features "
+            "lose its detail that far out: translate the data set to the origin (same shift for every mesh)"
         )
     areas = face_areas(vertices, faces)
     mean = float(areas.mean())
