@@ -72,6 +72,13 @@ def grid_pairs(lo, hi, cell):
     Returns:
         (P, 2) int64 pairs.
     """
+    return grid_pairs_active(lo, hi, cell, np.ones(lo.shape[0], dtype=np.bool_), lo, -1.0)
+
+
+@njit(cache=True)
+def grid_pairs_active(lo, hi, cell, active, pts, skip2):
+    """Like :func:`grid_pairs`, only the pairs with at least one box marked in ``active`` (F,) bool and whose
+    points ``pts`` (F, 3) are at least ``sqrt(skip2)`` apart (``skip2 < 0``: no such filter)."""
     n = lo.shape[0]
     origin = np.empty(3)
     for d in range(3):
@@ -119,6 +126,14 @@ def grid_pairs(lo, hi, cell):
             a = ids[i]
             for j in range(i + 1, end):
                 b = ids[j]
+                if not (active[a] or active[b]):
+                    continue
+                if skip2 >= 0.0:
+                    dd = 0.0
+                    for d in range(3):
+                        dd += (pts[a, d] - pts[b, d]) ** 2
+                    if dd < skip2:
+                        continue
                 ok = True
                 for d in range(3):
                     if lo[a, d] > hi[b, d] or lo[b, d] > hi[a, d]:
@@ -521,20 +536,6 @@ def _tri_dist(verts, faces, a, b):
 
 
 @njit(cache=True, inline="always")
-def _lower_bound(sorted_keys, key):
-    """First index i with sorted_keys[i] >= key (binary search; np.searchsorted is slow on scalars)."""
-    lo = 0
-    hi = sorted_keys.shape[0]
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if sorted_keys[mid] < key:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
-@njit(cache=True, inline="always")
 def _box_gap(p0, p1, p2, q0, q1, q2):
     """Distance between the axis-aligned boxes of two triangles (a lower bound of their distance)."""
     g2 = 0.0
@@ -586,73 +587,159 @@ def _corner_angle(verts, faces, a, b):
     return 0.0
 
 
-@njit(cache=True)
-def label_mesh(verts, faces, pairs, scale, tau, cap, part, n_parts, adj_ptr, adj_idx, adj_eid,
-               n_edges, closed, orient, near_keys, near_rest):
-    """Counted pairs, per-part PD_i (K,) and per-vertex penetration depth (V,) of one mesh.
+@njit(cache=True, inline="always")
+def _near_index(near_ptr, near_b, a, b):
+    """Row of pair (a, b), a < b, in the near table (CSR by a, partners b sorted), or -1 if it is not near."""
+    lo = near_ptr[a]
+    end = near_ptr[a + 1]
+    hi = end
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if near_b[mid] < b:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo < end and near_b[lo] == b:
+        return lo
+    return -1
 
-    ``pairs`` are the non-adjacent pairs whose boxes are within ``cap``.
+
+@njit(cache=True, inline="always")
+def _boxes_overlap(lo, hi, a, b):
+    """The test of :func:`grid_pairs` (same comparisons, so the same pairs)."""
+    for d in range(3):
+        if lo[a, d] > hi[b, d] or lo[b, d] > hi[a, d]:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap, clear, part):
+    """Depth and clearance term of one non-adjacent candidate pair: (evaluated, depth, c).
+
+    ``idx`` is the pair's near-table row (-1: far). ``evaluated`` is False for a far pair that provably cannot
+    lower any clearance of its parts below the current one (then depth and c are not computed).
     """
-    n_vert = verts.shape[0]
-    n_faces = faces.shape[0]
-    clear = np.full(n_parts, np.inf)
-    floor = np.zeros(n_parts)
-    blocked = np.zeros(n_edges, dtype=np.bool_)
-    # crossing records: key = edge id + lambda / 2; ints = (edge, behind vertex, other end, pierced triangle,
-    # counted pair)
-    rec_cap = 64
-    rec_key = np.empty(rec_cap)
-    rec_int = np.empty((rec_cap, 5), dtype=np.int64)
+    p0 = _pt(verts, faces[a, 0])
+    p1 = _pt(verts, faces[a, 1])
+    p2 = _pt(verts, faces[a, 2])
+    q0 = _pt(verts, faces[b, 0])
+    q1 = _pt(verts, faces[b, 1])
+    q2 = _pt(verts, faces[b, 2])
+    near = idx >= 0
+    if shared == 1:
+        if opposite_edges_cross(verts, faces, a, b):
+            depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
+        else:
+            depth = -1.0  # no overlap beyond the shared vertex
+    elif near:
+        depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
+    else:
+        lb = _box_gap(p0, p1, p2, q0, q1, q2)
+        if lb > 0.0 and lb >= _part_min(clear, part, faces, a, b, cap):
+            return False, 0.0, 0.0  # apart by more than any clearance this pair could still lower
+        if plane_separated(p0, p1, p2, q0, q1, q2, cap):
+            return False, 0.0, 0.0  # apart by more than cap: no overlap, clearance term >= cap
+        if plane_separated(p0, p1, p2, q0, q1, q2, tau):
+            depth = -1.0
+        else:
+            depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
+    if depth > tau:
+        c = 0.0
+    elif near:
+        r = near_rest[idx]
+        if r <= 0.0:
+            c = cap  # the pair touches in the rest mesh: no reference to measure against
+        elif shared == 1:
+            c = cap * _corner_angle(verts, faces, a, b) / r
+        else:
+            c = cap * max(-depth, 0.0) / r
+    else:
+        c = 0.0 if depth > 0.0 else triangle_distance(p0, p1, p2, q0, q1, q2)
+    return True, depth, c
+
+
+@njit(cache=True, inline="always")
+def _lower_clearance(clear, part, faces, a, b, c):
+    for t in (a, b):
+        for i in range(3):
+            pi = part[faces[t, i]]
+            if c < clear[pi]:
+                clear[pi] = c
+
+
+@njit(cache=True)
+def _add_crossings(verts, faces, a, b, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec):
+    """Append the crossing records of a counted pair (edges of a through b and of b through a).
+
+    A record is key = edge id + lambda / 2 and ints = (edge, behind vertex, other end, pierced triangle,
+    counted pair). Returns the (possibly grown) arrays and the new count.
+    """
+    for side in range(2):
+        s = a if side == 0 else b
+        t = b if side == 0 else a
+        ta = _pt(verts, faces[t, 0])
+        tb = _pt(verts, faces[t, 1])
+        tc = _pt(verts, faces[t, 2])
+        for i in range(3):
+            u = faces[s, i]
+            w = faces[s, (i + 1) % 3]
+            if u == faces[t, 0] or u == faces[t, 1] or u == faces[t, 2]:
+                continue
+            if w == faces[t, 0] or w == faces[t, 1] or w == faces[t, 2]:
+                continue
+            pu = _pt(verts, u)
+            pw = _pt(verts, w)
+            sd = segment_crosses_triangle(pu, pw, ta, tb, tc)
+            if sd == 0.0:
+                continue
+            eid = _edge_id(adj_ptr, adj_idx, adj_eid, u, w)
+            if eid < 0:
+                continue
+            if n_rec == rec_key.shape[0]:
+                g_key = np.empty(2 * n_rec)
+                g_int = np.empty((2 * n_rec, 5), dtype=np.int64)
+                g_key[:n_rec] = rec_key[:n_rec]
+                g_int[:n_rec] = rec_int[:n_rec]
+                rec_key = g_key
+                rec_int = g_int
+            lo_v = min(u, w)  # crossing parameter measured from the lower vertex id, so both
+            hi_v = max(u, w)  # triangles of the edge give the same value
+            dl = _orient(ta, tb, tc, _pt(verts, lo_v))
+            dh = _orient(ta, tb, tc, _pt(verts, hi_v))
+            lam = dl / (dl - dh)
+            behind = u if sd * orient < 0.0 else w
+            rec_key[n_rec] = eid + 0.5 * min(max(lam, 0.0), 1.0)
+            rec_int[n_rec, 0] = eid
+            rec_int[n_rec, 1] = behind
+            rec_int[n_rec, 2] = w if behind == u else u
+            rec_int[n_rec, 3] = t
+            rec_int[n_rec, 4] = 1
+            n_rec += 1
+    return rec_key, rec_int, n_rec
+
+
+@njit(cache=True)
+def pair_pass(verts, faces, pairs, scale, tau, cap, part, clear, floor, adj_ptr, adj_idx, adj_eid, orient,
+              near_ptr, near_b, near_rest):
+    """Depth and clearance of every candidate pair: lowers ``clear`` and raises ``floor`` (per part) in place.
+
+    Returns:
+        n_pairs (counted pairs), and the crossing records (rec_key, rec_int, n_rec) of the counted pairs.
+    """
+    rec_key = np.empty(64)
+    rec_int = np.empty((64, 5), dtype=np.int64)
     n_rec = 0
     n_pairs = 0
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
         b = pairs[k, 1]
         shared = shared_vertex_count(faces, a, b)
-        p0 = _pt(verts, faces[a, 0])
-        p1 = _pt(verts, faces[a, 1])
-        p2 = _pt(verts, faces[a, 2])
-        q0 = _pt(verts, faces[b, 0])
-        q1 = _pt(verts, faces[b, 1])
-        q2 = _pt(verts, faces[b, 2])
-        key = a * n_faces + b
-        idx = _lower_bound(near_keys, key)
-        near = idx < near_keys.shape[0] and near_keys[idx] == key
-        # ---- depth (SAT) where the triangles can overlap, and the clearance term c of the pair
-        if shared == 1:
-            if opposite_edges_cross(verts, faces, a, b):
-                depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
-            else:
-                depth = -1.0  # no overlap beyond the shared vertex
-        elif near:
-            depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
-        else:
-            lb = _box_gap(p0, p1, p2, q0, q1, q2)
-            if lb > 0.0 and lb >= _part_min(clear, part, faces, a, b, cap):
-                continue  # apart by more than any clearance this pair could still lower
-            if plane_separated(p0, p1, p2, q0, q1, q2, cap):
-                continue  # apart by more than cap: no overlap, clearance term >= cap
-            if plane_separated(p0, p1, p2, q0, q1, q2, tau):
-                depth = -1.0
-            else:
-                depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
-        if depth > tau:
-            c = 0.0
-        elif near:
-            r = near_rest[idx]
-            if r <= 0.0:
-                c = cap  # the pair touches in the rest mesh: no reference to measure against
-            elif shared == 1:
-                c = cap * _corner_angle(verts, faces, a, b) / r
-            else:
-                c = cap * max(-depth, 0.0) / r
-        else:
-            c = 0.0 if depth > 0.0 else triangle_distance(p0, p1, p2, q0, q1, q2)
-        for t in (a, b):
-            for i in range(3):
-                pi = part[faces[t, i]]
-                if c < clear[pi]:
-                    clear[pi] = c
+        idx = _near_index(near_ptr, near_b, a, b)
+        evaluated, depth, c = _pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap, clear, part)
+        if not evaluated:
+            continue
+        _lower_clearance(clear, part, faces, a, b, c)
         if depth <= tau:
             continue  # apart, or touching within tau: not counted, no crossing edges
         n_pairs += 1
@@ -660,49 +747,18 @@ def label_mesh(verts, faces, pairs, scale, tau, cap, part, n_parts, adj_ptr, adj
             for i in range(3):
                 pi = part[faces[t, i]]
                 floor[pi] = max(floor[pi], depth - tau)
-        # ---- crossing edges of s through t and of t through s
-        for side in range(2):
-            s = a if side == 0 else b
-            t = b if side == 0 else a
-            ta = _pt(verts, faces[t, 0])
-            tb = _pt(verts, faces[t, 1])
-            tc = _pt(verts, faces[t, 2])
-            for i in range(3):
-                u = faces[s, i]
-                w = faces[s, (i + 1) % 3]
-                if u == faces[t, 0] or u == faces[t, 1] or u == faces[t, 2]:
-                    continue
-                if w == faces[t, 0] or w == faces[t, 1] or w == faces[t, 2]:
-                    continue
-                pu = _pt(verts, u)
-                pw = _pt(verts, w)
-                sd = segment_crosses_triangle(pu, pw, ta, tb, tc)
-                if sd == 0.0:
-                    continue
-                eid = _edge_id(adj_ptr, adj_idx, adj_eid, u, w)
-                if eid < 0:
-                    continue
-                if n_rec == rec_cap:
-                    rec_cap *= 2
-                    g_key = np.empty(rec_cap)
-                    g_int = np.empty((rec_cap, 5), dtype=np.int64)
-                    g_key[:n_rec] = rec_key[:n_rec]
-                    g_int[:n_rec] = rec_int[:n_rec]
-                    rec_key = g_key
-                    rec_int = g_int
-                lo_v = min(u, w)  # crossing parameter measured from the lower vertex id, so both
-                hi_v = max(u, w)  # triangles of the edge give the same value
-                dl = _orient(ta, tb, tc, _pt(verts, lo_v))
-                dh = _orient(ta, tb, tc, _pt(verts, hi_v))
-                lam = dl / (dl - dh)
-                behind = u if sd * orient < 0.0 else w
-                rec_key[n_rec] = eid + 0.5 * min(max(lam, 0.0), 1.0)
-                rec_int[n_rec, 0] = eid
-                rec_int[n_rec, 1] = behind
-                rec_int[n_rec, 2] = w if behind == u else u
-                rec_int[n_rec, 3] = t
-                rec_int[n_rec, 4] = 1
-                n_rec += 1
+        rec_key, rec_int, n_rec = _add_crossings(verts, faces, a, b, adj_ptr, adj_idx, adj_eid, orient,
+                                                 rec_key, rec_int, n_rec)
+    return n_pairs, rec_key, rec_int, n_rec
+
+
+@njit(cache=True)
+def finish_label(verts, faces, rec_key, rec_int, n_rec, n_edges, floor, clear, part, n_parts, cap,
+                 adj_ptr, adj_idx, adj_eid, closed):
+    """Per-part PD_i (K,) and per-vertex penetration depth (V,) from the crossing records and the per-part
+    clearance / pair-depth floor of :func:`pair_pass`."""
+    n_vert = verts.shape[0]
+    blocked = np.zeros(n_edges, dtype=np.bool_)
     # An edge separates inside from outside only if it crosses the surface an odd number of times (an edge
     # through a corner enters and leaves). Crossings at the same point (through a shared edge or vertex of the
     # other surface) count once if they agree on the side, and not at all if they disagree (a graze).
@@ -750,7 +806,165 @@ def label_mesh(verts, faces, pairs, scale, tau, cap, part, n_parts, adj_ptr, adj
     out = np.empty(n_parts)
     for i in range(n_parts):
         out[i] = pos[i] if pos[i] > 0.0 else -min(cap, clear[i])
+    return out, depth_v
+
+
+@njit(cache=True)
+def label_mesh(verts, faces, pairs, scale, tau, cap, part, n_parts, adj_ptr, adj_idx, adj_eid,
+               n_edges, closed, orient, near_ptr, near_b, near_rest):
+    """Counted pairs, per-part PD_i (K,) and per-vertex penetration depth (V,) of one mesh, evaluating every
+    pair of ``pairs`` (the non-adjacent pairs whose boxes are within ``cap``): the reference path, quadratic
+    in the mesh density (see :func:`near_clearances` for the pruned one)."""
+    clear = np.full(n_parts, np.inf)
+    floor = np.zeros(n_parts)
+    n_pairs, rec_key, rec_int, n_rec = pair_pass(verts, faces, pairs, scale, tau, cap, part, clear, floor,
+                                                 adj_ptr, adj_idx, adj_eid, orient, near_ptr, near_b, near_rest)
+    out, depth_v = finish_label(verts, faces, rec_key, rec_int, n_rec, n_edges, floor, clear, part, n_parts, cap,
+                                adj_ptr, adj_idx, adj_eid, closed)
     return n_pairs, out, depth_v
+
+
+# ----------------------------------------------------------------------------------------- pruned clearance
+@njit(cache=True)
+def triangle_axes(verts, faces, scale):
+    """The four SAT axes each triangle contributes to :func:`triangle_pair_depth`: its normal and its three
+    in-plane edge normals, formed with exactly the same floating-point operations.
+
+    Returns:
+        axes (F, 4, 3) unnormalised axes, inv (F, 4) their inverse length (0 for an axis
+        ``triangle_pair_depth`` skips as degenerate), lo and hi (F, 4) the triangle's own projection interval.
+    """
+    tiny = _EPS_AXIS * scale**4
+    n_faces = faces.shape[0]
+    axes = np.zeros((n_faces, 4, 3))
+    inv = np.zeros((n_faces, 4))
+    lo = np.zeros((n_faces, 4))
+    hi = np.zeros((n_faces, 4))
+    for f in range(n_faces):
+        p0 = _pt(verts, faces[f, 0])
+        p1 = _pt(verts, faces[f, 1])
+        p2 = _pt(verts, faces[f, 2])
+        e0 = _sub(p1, p0)
+        e1 = _sub(p2, p1)
+        e2 = _sub(p0, p2)
+        n = _cross(e0, _sub(p2, p0))
+        for k in range(4):
+            if k == 0:
+                ax = n
+                ok = _dot(ax, ax) > 0.0
+            else:
+                ax = _cross(n, e0 if k == 1 else (e1 if k == 2 else e2))
+                ok = _dot(ax, ax) > tiny and _dot(ax, ax) > 0.0
+            if not ok:
+                continue
+            iv = 1.0 / np.sqrt(_dot(ax, ax))
+            a0 = _dot(ax, p0) * iv
+            a1 = _dot(ax, p1) * iv
+            a2 = _dot(ax, p2) * iv
+            for d in range(3):
+                axes[f, k, d] = ax[d]
+            inv[f, k] = iv
+            lo[f, k] = min(a0, a1, a2)
+            hi[f, k] = max(a0, a1, a2)
+    return axes, inv, lo, hi
+
+
+@njit(cache=True, inline="always")
+def _axes_gap(axes, inv, lo, hi, f, q0, q1, q2):
+    """Largest gap between triangle f and the triangle (q0, q1, q2) along f's own SAT axes (-inf if none).
+
+    Each term is the negated overlap ``_sat_axis`` computes for that axis, bit for bit, and the SAT depth is
+    the minimum overlap over a superset of these axes, so ``gap <= -triangle_pair_depth`` exactly."""
+    g = -np.inf
+    for k in range(4):
+        iv = inv[f, k]
+        if iv == 0.0:
+            continue
+        ax = (axes[f, k, 0], axes[f, k, 1], axes[f, k, 2])
+        b0 = _dot(ax, q0) * iv
+        b1 = _dot(ax, q1) * iv
+        b2 = _dot(ax, q2) * iv
+        ov = min(hi[f, k] - min(b0, b1, b2), max(b0, b1, b2) - lo[f, k])
+        g = max(g, -ov)
+    return g
+
+
+@njit(cache=True)
+def near_clearances(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, lo_cap, hi_cap, axes, inv,
+                    ax_lo, ax_hi, scale, tau, cap, clear, part):
+    """Lower ``clear`` (per part, in place) by the clearance terms of the near pairs whose boxes are disjoint
+    (pairs with overlapping boxes are :func:`pair_pass`'s) but within ``cap`` (``lo_cap``/``hi_cap``: boxes
+    grown by cap / 2, the reference's candidate test).
+
+    Bound: a near pair not sharing a vertex has ``c = cap * m / r`` (``r > 0`` its rest separation) with
+    ``m = max(-depth, 0)``, and ``m >= g``, the largest gap along the pair's own per-triangle SAT axes
+    (:func:`_axes_gap`, the same floating-point values as in the SAT, so the inequality holds exactly, and
+    the multiplication and division keep it). So ``cap * g / r >= thr`` proves ``c >= thr``; with ``thr`` the
+    largest current clearance (capped) of the pair's parts, the pair cannot lower any of them and is skipped
+    (first against the largest clearance of all parts, which needs no per-pair lookup). Returns the number of
+    pairs evaluated in full.
+    """
+    n_faces = faces.shape[0]
+    tv = np.empty((n_faces, 9))  # vertices of each triangle, contiguous
+    for f in range(n_faces):
+        for i in range(3):
+            for d in range(3):
+                tv[f, 3 * i + d] = verts[faces[f, i], d]
+    n_full = 0
+    for a in range(n_faces):
+        t_all = min(clear.max(), cap)
+        if t_all <= 0.0:
+            break  # every clearance is 0
+        p0 = (tv[a, 0], tv[a, 1], tv[a, 2])
+        p1 = (tv[a, 3], tv[a, 4], tv[a, 5])
+        p2 = (tv[a, 6], tv[a, 7], tv[a, 8])
+        for idx in range(near_ptr[a], near_ptr[a + 1]):
+            b = near_b[idx]
+            r = near_rest[idx]
+            bound = not near_shared[idx] and r > 0.0
+            if bound:
+                q0 = (tv[b, 0], tv[b, 1], tv[b, 2])
+                q1 = (tv[b, 3], tv[b, 4], tv[b, 5])
+                q2 = (tv[b, 6], tv[b, 7], tv[b, 8])
+                ga = cap * _axes_gap(axes, inv, ax_lo, ax_hi, a, q0, q1, q2) / r
+                if ga >= t_all:
+                    continue
+            if _boxes_overlap(lo0, hi0, a, b) or not _boxes_overlap(lo_cap, hi_cap, a, b):
+                continue
+            thr = _part_min(clear, part, faces, a, b, cap)
+            if thr <= 0.0:
+                continue  # c >= 0 >= every clearance of the pair's parts
+            if bound:
+                if ga >= thr or cap * _axes_gap(axes, inv, ax_lo, ax_hi, b, p0, p1, p2) / r >= thr:
+                    continue
+            n_full += 1
+            shared = 1 if near_shared[idx] else 0
+            evaluated, depth, c = _pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap, clear,
+                                              part)
+            if evaluated:
+                _lower_clearance(clear, part, faces, a, b, c)
+    return n_full
+
+
+@njit(cache=True)
+def far_clearances(verts, faces, pairs, near_ptr, near_b, near_rest, lo0, hi0, lo_cap, hi_cap, scale, tau, cap,
+                   clear, part):
+    """Lower ``clear`` (in place) by the clearance terms of the far pairs among ``pairs`` that the reference
+    considers (boxes within cap, i.e. ``lo_cap``/``hi_cap`` overlap) and :func:`pair_pass` did not (boxes
+    disjoint). Returns the number of far pairs evaluated."""
+    n_eval = 0
+    for k in range(pairs.shape[0]):
+        a = pairs[k, 0]
+        b = pairs[k, 1]
+        if _boxes_overlap(lo0, hi0, a, b) or not _boxes_overlap(lo_cap, hi_cap, a, b):
+            continue
+        if shared_vertex_count(faces, a, b) > 0 or _near_index(near_ptr, near_b, a, b) >= 0:
+            continue  # adjacent, or near (every pair sharing a vertex is near): not a far pair
+        evaluated, depth, c = _pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear, part)
+        if evaluated:
+            n_eval += 1
+            _lower_clearance(clear, part, faces, a, b, c)
+    return n_eval
 
 
 @njit(cache=True)
