@@ -7,6 +7,11 @@
   half are the next uniform rows (exploration).
 
 Both keep a cursor into the uniform pool, saved with the training checkpoint (``state_dict``).
+
+Samples the exact labeler fails on (NaN/inf decoded mesh, an exception, a worker that dies or hangs:
+:mod:`neuralcol.collision.pool`) never reach D_c: the uniform pool replaces them by the next codes of its
+sequence, failed projected samples are replaced by uniform rows (like failed projections), so D_c still grows by
+exactly ``n``. ``info["n_label_failures"]`` counts the samples dropped by each acquisition.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ import torch
 from neuralcol.active.newton import newton_project
 from neuralcol.active.oracle import LatentOracle
 from neuralcol.data.collision_store import ORIGIN_PROJECTED, ORIGIN_UNIFORM, CollisionStore
-from neuralcol.data.uniform_samples import labeled_uniform_rows
+from neuralcol.data.uniform_samples import uniform_rows
 
 
 class Acquired(NamedTuple):
@@ -46,6 +51,7 @@ def _concat(parts: list[Acquired]) -> Acquired:
     info: dict = {}
     for p in parts:
         info.update(p.info)
+    info["n_label_failures"] = sum(int(p.info.get("n_label_failures", 0)) for p in parts)
     return Acquired(*cat, sum(p.label_seconds for p in parts), sum(p.project_seconds for p in parts), info)
 
 
@@ -65,15 +71,17 @@ class UniformAcquisition:
         self.cursor = 0
 
     def take(self, n: int) -> Acquired:
-        """The next ``n`` pool rows (labeling them if the pool is shorter)."""
+        """The next ``n`` pool rows (labeling them if the pool is shorter; codes that fail to label are
+        replaced by the next ones and counted in ``info["n_label_failures"]``)."""
         stop = self.cursor + int(n)
-        rows, seconds, labeled = labeled_uniform_rows(self.pool_path, self.oracle, stop, self.seed,
+        rows, seconds, labeled, failed = uniform_rows(self.pool_path, self.oracle, stop, self.seed,
                                                       desc="labeling uniform samples")
         sl = slice(self.cursor, stop)
         self.cursor = stop
         return Acquired(rows.z[sl], rows.pd[sl], rows.pd_sub[sl], rows.collides[sl], rows.subset[sl],
                         np.full(int(n), ORIGIN_UNIFORM, np.int8), seconds, 0.0,
-                        {"n_uniform": int(n), "n_uniform_labeled_now": labeled})
+                        {"n_uniform": int(n), "n_uniform_labeled_now": labeled,
+                         "n_uniform_label_failures": failed, "n_label_failures": failed})
 
     def __call__(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> Acquired:
         return self.take(n)
@@ -119,9 +127,13 @@ class ProjectedAcquisition(UniformAcquisition):
         z = proj.z[proj.finite].float().cpu()
         t_proj = time.perf_counter() - t0
         lab = self.oracle(z, desc="labeling projected samples")
+        n_failed = lab.n_failed
+        lab = lab.without_failures()  # never written to D_c; the uniform rows make up for them
+        z = torch.as_tensor(lab.z)
         with torch.no_grad():
             p = torch.sigmoid(net64(z.to(dev, torch.float64)).logit).cpu().numpy() if len(z) else np.zeros(0)
         info = {"n_projected": int(len(z)), "n_projection_failed": int((~proj.finite).sum()),
+                "n_projected_label_failures": n_failed, "n_label_failures": n_failed,
                 "newton_converged_fraction": float(proj.converged.float().mean()) if n else float("nan"),
                 "newton_mean_iterations": float(proj.iterations.float().mean()) if n else float("nan"),
                 "projected_prob_mean": float(p.mean()) if len(p) else float("nan"),
@@ -133,6 +145,7 @@ class ProjectedAcquisition(UniformAcquisition):
     def __call__(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> Acquired:
         n_proj = int(round(n * self.projected_fraction))
         projected = self.project(round_, net, store, n_proj)
-        # failed projections (non-finite) are replaced by uniform samples, so D_c grows by exactly n
+        # failed projections (non-finite) and projected samples that failed to label are replaced by uniform
+        # samples, so D_c grows by exactly n
         uniform = self.take(n - len(projected.z))
         return _concat([projected, uniform])

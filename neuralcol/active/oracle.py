@@ -20,7 +20,14 @@ from neuralcol.nn.latent_space import LatentSpace
 
 class OracleLabels(NamedTuple):
     """Labels of B codes: z (B, D) float32, pd (B,), pd_sub (B, K), collides (B,) bool, subset (B,) int8
-    (0 D_p, 1 D_n, 2 D_b); seconds spent decoding and labeling."""
+    (0 D_p, 1 D_n, 2 D_b); seconds spent decoding and labeling.
+
+    Codes that could not be labeled (the decoded mesh has NaN/inf vertices, the labeler raised on it twice,
+    its worker died or hung: see :mod:`neuralcol.collision.pool`) keep their row with ``ok`` False, ``pd`` and
+    ``pd_sub`` NaN, ``collides`` False and ``subset`` -1, and are listed in ``failures`` as ``(index, reason)``.
+    Such rows must never reach D_c: :meth:`without_failures` drops them. ``ok`` None means every row is
+    labeled (e.g. an analytic test oracle).
+    """
 
     z: np.ndarray
     pd: np.ndarray
@@ -28,6 +35,21 @@ class OracleLabels(NamedTuple):
     collides: np.ndarray
     subset: np.ndarray
     seconds: float
+    ok: np.ndarray | None = None
+    failures: tuple = ()
+
+    @property
+    def n_failed(self) -> int:
+        """Number of codes that could not be labeled."""
+        return len(self.failures) if self.ok is None else int(len(self.ok) - np.count_nonzero(self.ok))
+
+    def without_failures(self) -> OracleLabels:
+        """The labeled rows only (``failures`` is kept, with the indices of the original rows)."""
+        if self.ok is None or self.ok.all():
+            return self
+        keep = np.asarray(self.ok, bool)
+        return self._replace(z=self.z[keep], pd=self.pd[keep], pd_sub=self.pd_sub[keep],
+                             collides=self.collides[keep], subset=self.subset[keep], ok=None)
 
 
 class LatentOracle:
@@ -58,7 +80,8 @@ class LatentOracle:
         return torch.cat(parts).numpy().astype(np.float64) if parts else np.zeros((0, 0, 3))
 
     def __call__(self, z: torch.Tensor, desc: str | None = None) -> OracleLabels:
-        """Label (B, D) codes; ``desc`` names the progress bar."""
+        """Label (B, D) codes; ``desc`` names the progress bar. Every code keeps its row; the ones that could
+        not be labeled have ``ok`` False (see :class:`OracleLabels`), and one warning line names them."""
         t0 = time.perf_counter()
         if desc is not None:
             self.pool.desc = desc
@@ -66,8 +89,10 @@ class LatentOracle:
         if len(z) == 0:
             k = self.space.n_parts
             return OracleLabels(np.zeros((0, self.space.dim), np.float32), np.zeros(0), np.zeros((0, k)),
-                                np.zeros(0, bool), np.zeros(0, np.int8), 0.0)
-        labels = self.pool.label(self.decode(z))
+                                np.zeros(0, bool), np.zeros(0, np.int8), 0.0, np.zeros(0, bool), ())
+        report = self.pool.label_report(self.decode(z))  # NaN/inf decoded meshes are reported, not labeled
+        labels = report.labels
         subset = split_subsets(labels.pd, self.eps)
+        subset[~report.ok] = -1
         return OracleLabels(z.cpu().numpy(), labels.pd, labels.pd_sub, labels.collides, subset,
-                            time.perf_counter() - t0)
+                            time.perf_counter() - t0, report.ok, tuple(report.failures))

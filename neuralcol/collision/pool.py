@@ -5,40 +5,146 @@ consecutive meshes, the chunks are labelled anywhere (this process, local worker
 :class:`concurrent.futures.Executor`, e.g. a dask cluster) and reassembled in input order: the result is
 bit-identical for every choice of ``workers``, ``chunk_size`` and executor.
 
+Worker faults (one bad mesh never loses the batch):
+
+* **The labeler raises on a mesh** (e.g. a degenerate decoded mesh), or returns a non-finite PD: the worker
+  catches it per mesh, the other meshes of the chunk keep their labels; the mesh is retried once, alone, and
+  if it fails again it is reported as ``(index, "ExceptionType: message")``.
+* **A worker process dies** (``os._exit``, a segfault, SIGKILL; pool-owned workers only): the pool starts new
+  worker processes and resubmits the unfinished work. The meshes of the chunks that were in flight are
+  suspects: they are labelled again one at a time, with nothing else running, so a mesh that kills its
+  worker again is identified and reported (``"worker died (exit code 3)"``) while the innocent ones get
+  their labels.
+* **A chunk hangs** (``timeout`` seconds, pool-owned workers only): when a chunk has been running for
+  ``timeout`` seconds the worker processes are killed (``ProcessPoolExecutor._processes``; if that private
+  attribute is missing, the pids the workers reported at start-up are killed and the executor abandoned) and
+  restarted, and the in-flight chunks become suspects as above; a mesh that times out again alone is
+  reported (``"timed out after 3 s"``). At most ``workers`` chunks are in flight and new workers are probed
+  before any chunk is sent, so a chunk's clock starts about when a worker takes it; only a mesh running alone
+  is ever reported, so a slow worker start-up cannot get an innocent mesh reported.
+* **Non-finite input vertices** are reported as ``"non-finite vertices"`` without being labelled.
+* At most ``max_restarts`` restarts per call: past that, every mesh not labelled yet is reported, so a
+  broken environment (every mesh crashing its worker) never loops. Workers that cannot start at all raise
+  ``RuntimeError`` (not a per-mesh fault).
+
+API: :meth:`LabelPool.label` returns :class:`~neuralcol.collision.labeler.Labels` and raises
+:class:`LabelingError` (listing the failed indices and reasons; its ``report`` holds the partial result)
+if any mesh could not be labelled; non-finite vertices raise ``ValueError`` before any work, as before.
+:meth:`LabelPool.label_report` never raises for per-mesh faults: it returns a :class:`LabelReport` with
+the labels of all B rows (failed rows: ``collides`` False, ``n_pairs`` -1, ``pd`` and ``pd_sub`` NaN), the
+``ok`` mask and the sorted list of :class:`LabelFailure` ``(index, reason)``, and logs one warning line
+per batch naming the first 10 failures. The labels of the meshes that succeed are bit-identical to a
+fault-free run. Labelling in this process (``workers`` 0 or 1) catches exceptions but cannot survive a
+crash or interrupt a hang; with a user ``executor``, exceptions are handled the same way, a broken
+executor is re-raised (it is not ours to restart) and ``timeout`` is not available.
+
 This module does not import torch; torch tensors are accepted through their ``.detach().cpu().numpy()``.
 """
 
 from __future__ import annotations
 
+import collections
 import concurrent.futures as cf
+import logging
 import multiprocessing
+import os
+import signal
+import time
 import weakref
 from concurrent.futures.process import BrokenProcessPool
+from typing import NamedTuple
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from neuralcol.collision.labeler import ExactLabeler, Label, Labels
+from neuralcol.utils.faults import fault_point
+
+log = logging.getLogger(__name__)
+
+STARTUP_TIMEOUT = 900.0  # seconds the workers may take to start (import, unpickle the labeler, load/compile kernels)
+MAX_REASON = 300  # characters of an exception message kept in a failure reason
+REPORTED_FAILURES = 10  # failures named in a warning line / error message
 
 # The labeler of a worker process of a LabelPool, set once by `_init_worker` (the process's own state;
 # never set in the parent process).
 _WORKER_LABELER: ExactLabeler | None = None
 
 
+class LabelFailure(NamedTuple):
+    """A mesh that could not be labelled: its index in the batch and why."""
+
+    index: int
+    reason: str
+
+
+class LabelReport(NamedTuple):
+    """Result of :meth:`LabelPool.label_report` for a batch of B meshes.
+
+    Attributes:
+        labels: labels of all B rows, in input order; failed rows have ``collides`` False, ``n_pairs`` -1,
+            ``pd`` NaN and ``pd_sub`` NaN.
+        ok: (B,) bool, True where the mesh was labelled.
+        failures: the failed meshes, sorted by index.
+    """
+
+    labels: Labels
+    ok: np.ndarray
+    failures: list[LabelFailure]
+
+
+class LabelingError(RuntimeError):
+    """Some meshes of a batch could not be labelled; ``report`` is the :class:`LabelReport` (partial labels)."""
+
+    def __init__(self, report: LabelReport, desc: str = "labeling"):
+        self.report = report
+        super().__init__(f"LabelPool.label ({desc}): {format_failures(report.failures, len(report.ok))}; "
+                         "LabelPool.label_report() returns the labels of the other meshes")
+
+
+def format_failures(failures: list[LabelFailure], n: int) -> str:
+    """``"2 of 8 meshes could not be labelled: [3] ValueError: ...; [5] worker died (exit code 3)"``
+    (the first :data:`REPORTED_FAILURES`)."""
+    shown = "; ".join(f"[{f.index}] {f.reason}" for f in failures[:REPORTED_FAILURES])
+    more = f"; ... ({len(failures) - REPORTED_FAILURES} more)" if len(failures) > REPORTED_FAILURES else ""
+    return f"{len(failures)} of {n} meshes could not be labelled: {shown}{more}"
+
+
+def _reason(exc: BaseException) -> str:
+    """One line: ``"ExceptionType: message"`` (message shortened)."""
+    msg = " ".join(str(exc).split())
+    if len(msg) > MAX_REASON:
+        msg = msg[:MAX_REASON - 3] + "..."
+    return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+
+
 def _init_worker(labeler: ExactLabeler) -> None:
-    """Initializer of the pool's worker processes: keep the labeler, sent once per worker."""
+    """Initializer of the pool's worker processes: keep the labeler, sent once per worker, and label its rest
+    mesh once so the compiled kernels are loaded (or compiled) before the worker takes a chunk, outside any
+    chunk's timeout."""
     global _WORKER_LABELER
     _WORKER_LABELER = labeler
+    rest = getattr(labeler, "rest", None)
+    if rest is not None:
+        try:
+            labeler.label(rest)
+        except Exception:  # only a warm-up: a real problem shows on the chunks
+            pass
 
 
-def _label_chunk(chunk: np.ndarray) -> list[Label]:
+def _ready() -> int:
+    """Start-up probe of a worker process: its pid."""
+    return os.getpid()
+
+
+def _label_chunk(chunk: np.ndarray) -> list[Label | str]:
     """Labels of a chunk (C, V, 3) float64 with the labeler installed by :func:`_init_worker`."""
     if _WORKER_LABELER is None:
         raise RuntimeError("LabelPool worker has no labeler; _label_chunk must run in a pool made by LabelPool")
     return _label_chunk_with(_WORKER_LABELER, chunk)
 
 
-def _label_chunk_with(labeler: ExactLabeler, chunk: np.ndarray) -> list[Label]:
+def _label_chunk_with(labeler: ExactLabeler, chunk: np.ndarray) -> list[Label | str]:
     """Labels of a chunk (C, V, 3) float64 with the given labeler (self-contained task for any executor).
 
     Args:
@@ -46,9 +152,77 @@ def _label_chunk_with(labeler: ExactLabeler, chunk: np.ndarray) -> list[Label]:
         chunk: (C, V, 3) float64 vertices.
 
     Returns:
-        C labels in the order of ``chunk``.
+        C entries in the order of ``chunk``: the mesh's Label, or a failure reason (str) if the labeler raised
+        an exception or returned a non-finite PD.
     """
-    return [labeler.label(v) for v in chunk]
+    out: list[Label | str] = []
+    for v in chunk:
+        try:
+            lb = labeler.label(v)
+        except Exception as exc:  # one bad mesh must not lose the chunk
+            out.append(_reason(exc))
+            continue
+        if not (np.isfinite(lb.pd) and np.isfinite(lb.pd_sub).all()):
+            out.append(f"non-finite label (pd={lb.pd})")
+        else:
+            out.append(lb)
+    return out
+
+
+def _death_reason(exit_codes: list[int | None]) -> str:
+    """``"worker died (exit code 3)"`` from the exit codes of the worker processes after the pool broke (the
+    executor terminates the survivors with SIGTERM, so the other codes name the dead worker)."""
+    codes = [c for c in exit_codes if c not in (None, 0, -signal.SIGTERM)]
+    if not codes:
+        return "worker died"
+    c = codes[0]
+    if c > 0:
+        return f"worker died (exit code {c})"
+    try:
+        return f"worker died (signal {signal.Signals(-c).name})"
+    except ValueError:
+        return f"worker died (exit code {c})"
+
+
+class _Task(NamedTuple):
+    """Meshes (global indices) labelled together; ``isolated``: a suspect running alone (see the module doc)."""
+
+    idx: np.ndarray
+    isolated: bool
+
+
+class _Batch:
+    """Bookkeeping of one call: labels and failures by index, exception retries, the progress bar."""
+
+    def __init__(self, n: int, bar):
+        self.results: list[Label | None] = [None] * n
+        self.failures: dict[int, str] = {}
+        self.raised: collections.Counter = collections.Counter()  # exceptions per mesh
+        self.bar = bar
+
+    def fail(self, i: int, reason: str) -> None:
+        self.failures[int(i)] = reason
+        self.bar.update(1)
+
+    def settle(self, task: _Task, out: list[Label | str]) -> list[_Task]:
+        """Record a task's result; returns the retries (meshes that raised for the first time, each alone)."""
+        retry = []
+        for i, r in zip(task.idx, out):
+            if isinstance(r, str):
+                retry += self.charge(int(i), r, task.isolated)
+            else:
+                self.results[int(i)] = r
+                self.bar.update(1)
+        fault_point("label_chunk")  # crash tests (neuralcol.utils.faults): a chunk is labelled
+        return retry
+
+    def charge(self, i: int, reason: str, isolated: bool) -> list[_Task]:
+        """A mesh raised: retried once (alone), then reported."""
+        self.raised[i] += 1
+        if self.raised[i] >= 2:
+            self.fail(i, reason)
+            return []
+        return [_Task(np.array([i]), isolated)]
 
 
 class LabelPool:
@@ -76,7 +250,8 @@ class LabelPool:
       (The workers need ``neuralcol`` installed; scattering the labeler once is not needed for typical
       sizes, it is a few MB of numpy arrays.)
 
-    The labels do not depend on ``workers``, ``chunk_size`` or the executor (bit-identical).
+    The labels do not depend on ``workers``, ``chunk_size`` or the executor (bit-identical). Faults (a mesh
+    that raises, a worker that dies or hangs) are handled as the module docstring describes.
 
     Args:
         labeler: the exact labeler (holds only numpy arrays, so it pickles).
@@ -84,13 +259,16 @@ class LabelPool:
         chunk_size: meshes per task (>= 1). Larger chunks cost less overhead, smaller ones balance better.
         executor: a user-owned executor to submit the tasks to (see above), or None.
         progress: show a tqdm bar over meshes on stderr.
-        desc: label of the progress bar.
+        desc: label of the progress bar (and of the warning lines).
         mp_context: start method of the worker processes (``"spawn"``, ``"forkserver"``, ``"fork"``).
+        timeout: seconds a chunk may run on a worker process before the workers are killed and restarted
+            (None: no limit). Only for ``workers >= 2``: ignored in this process, refused with ``executor``.
+        max_restarts: worker-process restarts allowed per call (then the meshes not labelled yet fail).
     """
 
     def __init__(self, labeler: ExactLabeler, workers: int = 0, chunk_size: int = 32,
                  executor: cf.Executor | None = None, progress: bool = False, desc: str = "labeling",
-                 mp_context: str = "spawn"):
+                 mp_context: str = "spawn", timeout: float | None = None, max_restarts: int = 10):
         if not isinstance(labeler, ExactLabeler):
             raise TypeError(f"LabelPool: labeler is a {type(labeler).__name__}; pass an ExactLabeler")
         if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 0:
@@ -103,34 +281,86 @@ class LabelPool:
         if mp_context not in multiprocessing.get_all_start_methods():
             raise ValueError(f"LabelPool: mp_context={mp_context!r} is not available here; use one of "
                              f"{multiprocessing.get_all_start_methods()}")
+        if timeout is not None:
+            if isinstance(timeout, bool) or not isinstance(timeout, (int, float, np.number)) or not timeout > 0:
+                raise ValueError(f"LabelPool: timeout={timeout!r}; use a number of seconds > 0, or None")
+            if executor is not None:
+                raise ValueError("LabelPool: timeout needs the pool's own worker processes (it kills them); "
+                                 "with a user executor use the executor's own time limits")
+        if isinstance(max_restarts, bool) or not isinstance(max_restarts, (int, np.integer)) or max_restarts < 0:
+            raise ValueError(f"LabelPool: max_restarts={max_restarts!r}; use an int >= 0")
         self.labeler = labeler
         self.workers = int(workers)
         self.chunk_size = int(chunk_size)
         self.progress = bool(progress)
         self.desc = desc
         self.mp_context = mp_context
+        self.timeout = None if timeout is None else float(timeout)
+        self.max_restarts = int(max_restarts)
         self._user_executor = executor
         self._own_executor: cf.ProcessPoolExecutor | None = None
         self._finalizer: weakref.finalize | None = None
+        self._procs: list = []  # the worker processes of _own_executor (multiprocessing.Process)
+        self._pids: set[int] = set()  # their pids, as reported by the start-up probes
 
     # ------------------------------------------------------------------ lifecycle
     def _process_executor(self) -> cf.ProcessPoolExecutor:
+        """The pool's executor, started (and every worker probed) if needed."""
         if self._own_executor is None:
-            self._own_executor = cf.ProcessPoolExecutor(
+            executor = cf.ProcessPoolExecutor(
                 max_workers=self.workers, mp_context=multiprocessing.get_context(self.mp_context),
                 initializer=_init_worker, initargs=(self.labeler,))
+            self._own_executor = executor
             # shut the workers down if the pool is dropped without close()
-            self._finalizer = weakref.finalize(self, self._own_executor.shutdown, wait=False, cancel_futures=True)
+            self._finalizer = weakref.finalize(self, executor.shutdown, wait=False, cancel_futures=True)
+            # one probe per worker: the executor spawns all of them now, and at least one is ready when the first
+            # chunk is submitted (so a chunk's timeout does not count the start-up)
+            probes = [executor.submit(_ready) for _ in range(self.workers)]
+            done, not_done = cf.wait(probes, timeout=STARTUP_TIMEOUT)
+            self._procs = list((getattr(executor, "_processes", None) or {}).values())
+            errors = [f.exception() for f in done if f.exception() is not None]
+            if not_done or errors:
+                self._discard_executor(kill=True)
+                why = _reason(errors[0]) if errors else f"not ready after {STARTUP_TIMEOUT:g} s"
+                raise RuntimeError(f"LabelPool: the {self.workers} worker processes did not start ({why})")
+            self._pids = {f.result() for f in done}
         return self._own_executor
 
-    def close(self) -> None:
-        """Shut down the worker processes this pool started (a user executor is left running)."""
+    def _discard_executor(self, kill: bool) -> list[int | None]:
+        """Drop the pool's executor (killing its workers first if ``kill``); returns the workers' exit codes.
+
+        A broken executor (a worker died) is shut down without ``kill``: it has already terminated the other
+        workers with SIGTERM, so the dead worker's own exit code stands out."""
+        executor, self._own_executor = self._own_executor, None
         if self._finalizer is not None:
             self._finalizer.detach()
             self._finalizer = None
-        if self._own_executor is not None:
-            executor, self._own_executor = self._own_executor, None
-            executor.shutdown(wait=True, cancel_futures=True)
+        procs, self._procs = self._procs, []
+        pids, self._pids = self._pids, set()
+        if executor is None:
+            return []
+        if kill:
+            if procs:
+                for p in procs:
+                    if p.exitcode is None:
+                        p.kill()
+            else:  # fallback: ProcessPoolExecutor._processes was not available; kill the probed pids
+                log.warning("LabelPool: cannot list the worker processes; killing the %d known pids and "
+                            "abandoning the executor", len(pids))
+                for pid in pids:
+                    try:
+                        os.kill(pid, signal.SIGKILL)
+                    except OSError:
+                        pass
+        executor.shutdown(wait=bool(procs) or not kill, cancel_futures=True)
+        for p in procs:
+            p.join(timeout=10)
+        # read after the executor joined its workers (reading earlier races with its waitpid and can miss a code)
+        return [p.exitcode for p in procs]
+
+    def close(self) -> None:
+        """Shut down the worker processes this pool started (a user executor is left running)."""
+        self._discard_executor(kill=False)
 
     def __enter__(self) -> LabelPool:
         return self
@@ -144,7 +374,7 @@ class LabelPool:
         return f"LabelPool({where}, chunk_size={self.chunk_size}, n_vertices={self.labeler.n_vertices})"
 
     # ------------------------------------------------------------------ labelling
-    def _check(self, vertices) -> np.ndarray:
+    def _check(self, vertices, allow_non_finite: bool = False) -> np.ndarray:
         if hasattr(vertices, "detach"):  # torch tensor, without importing torch
             vertices = vertices.detach().cpu().numpy()
         v = np.asarray(vertices)
@@ -155,11 +385,12 @@ class LabelPool:
         if not np.issubdtype(v.dtype, np.number) or np.issubdtype(v.dtype, np.complexfloating):
             raise ValueError(f"LabelPool.label: vertices have dtype {v.dtype}, expected real floats")
         v = np.ascontiguousarray(v, dtype=np.float64)
-        finite = np.isfinite(v).all(axis=(1, 2))  # (B,)
-        if not finite.all():
-            bad = np.flatnonzero(~finite)
-            raise ValueError(f"LabelPool.label: meshes {bad[:10].tolist()}{' ...' if len(bad) > 10 else ''} of the "
-                             "batch contain NaN or inf vertices; cannot label them")
+        if not allow_non_finite:
+            finite = np.isfinite(v).all(axis=(1, 2))  # (B,)
+            if not finite.all():
+                bad = np.flatnonzero(~finite)
+                raise ValueError(f"LabelPool.label: meshes {bad[:10].tolist()}{' ...' if len(bad) > 10 else ''} "
+                                 "of the batch contain NaN or inf vertices; cannot label them")
         return v
 
     def label(self, vertices) -> Labels:
@@ -173,34 +404,158 @@ class LabelPool:
 
         Raises:
             ValueError: wrong shape or dtype, or non-finite vertices.
+            LabelingError: some meshes could not be labelled (after the retries); lists them, and its
+                ``report`` holds the labels of the others. Use :meth:`label_report` to get them directly.
         """
-        v = self._check(vertices)
-        if len(v) == 0:
-            return Labels.stack([], self.labeler.n_parts)
-        starts = range(0, len(v), self.chunk_size)
-        chunks = [v[s:s + self.chunk_size] for s in starts]  # each (C, V, 3) float64 contiguous
-        results: list[list[Label] | None] = [None] * len(chunks)
-        with tqdm(total=len(v), desc=self.desc, unit="mesh", disable=not self.progress) as bar:
+        report = self._run(self._check(vertices))
+        if report.failures:
+            raise LabelingError(report, self.desc)
+        return report.labels
+
+    def label_report(self, vertices) -> LabelReport:
+        """Labels of a batch of meshes, in input order, with the meshes that could not be labelled.
+
+        Per-mesh faults (the labeler raising, a worker dying or hanging, non-finite vertices) do not raise:
+        the mesh is reported in ``failures`` (and ``ok`` is False for it), and one warning line names the
+        first failures.
+
+        Args:
+            vertices: (B, V, 3) float, numpy or a torch tensor (any device); V = ``labeler.n_vertices``.
+
+        Returns:
+            :class:`LabelReport` (labels of all B rows, ``ok`` mask, failures sorted by index).
+
+        Raises:
+            ValueError: wrong shape or dtype.
+            RuntimeError: the worker processes cannot start at all (not a per-mesh fault).
+        """
+        v = self._check(vertices, allow_non_finite=True)
+        finite = np.isfinite(v).all(axis=(1, 2)) if len(v) else np.zeros(0, bool)
+        report = self._run(v, skip={int(i): "non-finite vertices" for i in np.flatnonzero(~finite)})
+        if report.failures:
+            log.warning("%s: %s", self.desc, format_failures(report.failures, len(v)))
+        return report
+
+    def _run(self, v: np.ndarray, skip: dict[int, str] | None = None) -> LabelReport:
+        """Label every mesh of ``v`` (B, V, 3) float64 except ``skip`` (index -> reason, reported as is)."""
+        n, k = len(v), self.labeler.n_parts
+        todo = np.setdiff1d(np.arange(n), np.fromiter(skip or {}, dtype=np.int64, count=len(skip or {})))
+        # chunks of consecutive meshes to label (the skipped ones are left out)
+        tasks = [_Task(todo[s:s + self.chunk_size], False) for s in range(0, len(todo), self.chunk_size)]
+        with tqdm(total=n, desc=self.desc, unit="mesh", disable=not self.progress) as bar:
+            batch = _Batch(n, bar)
+            for i, why in (skip or {}).items():
+                batch.fail(i, why)
             if self._user_executor is None and self.workers <= 1:
-                for i, chunk in enumerate(chunks):
-                    results[i] = _label_chunk_with(self.labeler, chunk)
-                    bar.update(len(chunk))
+                queue = collections.deque(tasks)
+                while queue:
+                    task = queue.popleft()
+                    queue.extend(batch.settle(task, _label_chunk_with(self.labeler, v[task.idx])))
             else:
-                if self._user_executor is not None:
-                    futures = {self._user_executor.submit(_label_chunk_with, self.labeler, c): i
-                               for i, c in enumerate(chunks)}
-                else:
-                    executor = self._process_executor()
-                    futures = {executor.submit(_label_chunk, c): i for i, c in enumerate(chunks)}
+                self._run_executor(v, tasks, batch)
+        for i in np.flatnonzero([r is None and i not in batch.failures for i, r in enumerate(batch.results)]):
+            batch.failures[int(i)] = "not labelled"  # cannot happen; never report a missing label as a success
+        ok = np.array([r is not None for r in batch.results], dtype=bool)
+        nan_row = np.full(k, np.nan)
+        rows = [r if r is not None else Label(False, -1, float("nan"), nan_row) for r in batch.results]
+        labels = Labels.stack(rows, k)
+        failures = [LabelFailure(i, batch.failures[i]) for i in sorted(batch.failures)]
+        return LabelReport(labels, ok, failures)
+
+    def _run_executor(self, v: np.ndarray, tasks: list[_Task], batch: _Batch) -> None:
+        """Label ``tasks`` on the pool's worker processes (at most ``workers`` chunks in flight, faults handled
+        as the module docstring says) or on the user's executor (all submitted at once)."""
+        own = self._user_executor is None
+        limit = self.workers if own else max(len(tasks), 1)
+        timeout = self.timeout if own else None
+        normal = collections.deque(tasks)
+        suspects: collections.deque[_Task] = collections.deque()  # labelled alone, nothing else in flight
+        in_flight: dict[cf.Future, tuple[_Task, float]] = {}
+        restarts = 0
+
+        def submit(queue: collections.deque[_Task]) -> None:
+            """Submit the first task of ``queue`` (taken off it only once submitted)."""
+            task = queue[0]
+            chunk = v[task.idx]
+            if own:
+                fut = self._process_executor().submit(_label_chunk, chunk)
+            else:
+                fut = self._user_executor.submit(_label_chunk_with, self.labeler, chunk)
+            in_flight[fut] = (queue.popleft(), time.monotonic())
+
+        def harvest(fut: cf.Future) -> bool:
+            """Record a finished future's result; False if it failed with BrokenProcessPool."""
+            task = in_flight[fut][0]
+            exc = fut.exception()
+            if isinstance(exc, BrokenProcessPool):
+                return False
+            del in_flight[fut]
+            if exc is None:
+                retries = batch.settle(task, fut.result())
+            elif isinstance(exc, Exception):  # the task itself failed (e.g. results could not be pickled)
+                retries = [t for i in task.idx for t in batch.charge(int(i), _reason(exc), task.isolated)]
+            else:
+                raise exc
+            for t in retries:
+                (suspects if t.isolated else normal).append(t)
+            return True
+
+        def fault(kind: str) -> None:
+            """The pool broke (``kind`` "died") or a chunk ran out of time ("timeout"): restart, isolate."""
+            nonlocal restarts
+            for fut in [f for f in in_flight if f.done()]:
+                harvest(fut)  # chunks that finished before the fault keep their labels
+            if not own:  # the user's executor broke; not ours to restart
+                raise next(f.exception() for f in in_flight if isinstance(f.exception(), BrokenProcessPool))
+            codes = self._discard_executor(kill=kind == "timeout")
+            reason = f"timed out after {timeout:g} s" if kind == "timeout" else _death_reason(codes)
+            lost = [task for task, _ in in_flight.values()]
+            in_flight.clear()
+            log.info("%s: %s; worker processes restarted, the %d mesh(es) in flight are relabelled one at a time",
+                     self.desc, "a chunk " + reason if kind == "timeout" else reason,
+                     sum(len(t.idx) for t in lost))
+            if len(lost) == 1 and lost[0].isolated:  # faulted again, alone: it is the culprit
+                for i in lost[0].idx:
+                    batch.fail(int(i), reason)
+            else:
+                suspects.extend(_Task(np.array([i]), True) for task in lost for i in task.idx)
+            restarts += 1
+            if restarts > self.max_restarts and (normal or suspects):
+                why = (f"not labelled: the worker processes were restarted {restarts} times in one call "
+                       f"(max_restarts={self.max_restarts}; last: {reason})")
+                for task in [*normal, *suspects]:
+                    for i in task.idx:
+                        batch.fail(int(i), why)
+                normal.clear()
+                suspects.clear()
+
+        try:
+            while normal or suspects or in_flight:
                 try:
-                    for fut in cf.as_completed(futures):
-                        i = futures[fut]
-                        results[i] = fut.result()
-                        bar.update(len(chunks[i]))
-                except BaseException as exc:
-                    for fut in futures:
-                        fut.cancel()
-                    if isinstance(exc, BrokenProcessPool) and self._user_executor is None:
-                        self.close()  # a worker died and broke the executor; the next call starts a new one
-                    raise
-        return Labels.stack([lb for chunk_labels in results for lb in chunk_labels], self.labeler.n_parts)
+                    if suspects:
+                        if not in_flight:
+                            submit(suspects)
+                    else:
+                        while normal and len(in_flight) < limit:
+                            submit(normal)
+                except BrokenProcessPool:
+                    if not own:
+                        raise
+                    fault("died")
+                    continue
+                wait = None
+                if timeout is not None:
+                    oldest = min(t0 for _, t0 in in_flight.values())
+                    wait = max(0.0, oldest + timeout - time.monotonic())
+                done, _ = cf.wait(in_flight, timeout=wait, return_when=cf.FIRST_COMPLETED)
+                broken = [fut for fut in done if not harvest(fut)]
+                if broken:
+                    fault("died")
+                elif not done and timeout is not None:
+                    fault("timeout")
+        except BaseException:
+            for fut in in_flight:
+                fut.cancel()
+            if own:  # interrupted (or an unexpected error): do not leave chunks running in the workers
+                self._discard_executor(kill=True)
+            raise

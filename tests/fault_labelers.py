@@ -1,0 +1,54 @@
+"""An exact labeler with injected faults, for the LabelPool fault tests (tests/test_pool_faults.py).
+
+A module of its own (not the test file) so the pool's spawned worker processes can unpickle the labeler by
+importing it (``tests/`` is on ``sys.path`` under pytest, and spawn passes ``sys.path`` to the children).
+
+The fault is chosen by the first vertex's x coordinate: a sentinel far outside any test mesh.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from neuralcol.collision.labeler import ExactLabeler, Label
+
+RAISE = 1001.0  # label() raises ValueError (a degenerate mesh)
+EXIT = 1002.0  # the process dies with os._exit(3) (never use in this process: workers >= 2 only)
+HANG = 1003.0  # label() sleeps "forever" (workers >= 2 with a timeout only)
+NAN = 1004.0  # label() returns a NaN PD
+FLAKY = 1005.0  # label() raises the first time it sees such a mesh in this process, then labels it
+
+_seen_flaky: set[bytes] = set()
+
+
+def mark(vertices: np.ndarray, sentinel: float) -> np.ndarray:
+    """A copy of one mesh (V, 3) whose first vertex carries ``sentinel``."""
+    v = np.array(vertices, dtype=np.float64)
+    v[0, 0] = sentinel
+    return v
+
+
+class FaultLabeler(ExactLabeler):
+    """:class:`ExactLabeler` that misbehaves on meshes marked with :func:`mark`."""
+
+    def label(self, vertices) -> Label:
+        v = np.asarray(vertices)
+        x = float(v[0, 0])
+        if x == RAISE:
+            raise ValueError("degenerate mesh (injected fault)")
+        if x == EXIT:
+            os._exit(3)
+        if x == HANG:
+            time.sleep(1e6)
+        if x == NAN:
+            lb = super().label(v)
+            return Label(lb.collides, lb.n_pairs, float("nan"), lb.pd_sub)
+        if x == FLAKY:
+            key = v.tobytes()
+            if key not in _seen_flaky:
+                _seen_flaky.add(key)
+                raise RuntimeError("transient failure (injected fault)")
+        return super().label(v)
