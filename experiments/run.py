@@ -64,7 +64,9 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     labeler = instantiate(cfg.labeling.labeler)(faces, rest)
     t0 = time.perf_counter()
     with LabelPool(labeler, **OmegaConf.to_container(cfg.labeling.pool), desc="labeling data set") as pool:
-        labels = pool.label(ds.vertices.numpy().astype("float64"))
+        # a mesh the labeler fails on is reported (index, reason) and left out of these statistics
+        report = pool.label_report(ds.vertices.numpy().astype("float64"))
+    labels = report.labels
     t_label = time.perf_counter() - t0
     # bilevel autoencoder (trained, or loaded from the cache) and its latent space
     from lightning.pytorch.loggers import TensorBoardLogger
@@ -122,8 +124,9 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
                  "max_rel_error": float(err.max.max()), "features_seconds": t_encode,
                  "features_from_cache": feats.from_cache, "decode_ms_per_mesh": 1e3 * t_decode / len(ds)},
         "dataset_labels": {"n_colliding": int(labels.collides.sum()), "colliding": [
-            ds.names[i] for i in np.nonzero(labels.collides)[0]], "pd_min": float(labels.pd.min()),
-            "pd_max": float(labels.pd.max()), "seconds": t_label},
+            ds.names[i] for i in np.nonzero(labels.collides)[0]], "pd_min": float(np.nanmin(labels.pd)),
+            "pd_max": float(np.nanmax(labels.pd)), "seconds": t_label,
+            "failed": [{"mesh": ds.names[f.index], "reason": f.reason} for f in report.failures]},
         "autoencoder": {**{k_: v for k_, v in ae_report.items() if k_ not in ("train_index", "val_index")},
                         "from_cache": ae_cached, "stage_seconds": t_ae},
         "latent": {"dim": space.dim, "n_parts": space.n_parts,

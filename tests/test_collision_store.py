@@ -62,3 +62,24 @@ def test_errors_name_the_file(tmp_path):
     with CollisionStore(path, 6, 2) as store, pytest.raises(ValueError, match=r"expected \(B, 6\)"):
         store.append(z=np.zeros((3, 5)), pd=np.zeros(3), pd_sub=np.zeros((3, 2)), collides=np.zeros(3),
                       subset=np.zeros(3), round_=0, origin=0)
+
+
+def test_truncated_or_corrupted_file_is_named(tmp_path):
+    rng = np.random.default_rng(2)
+    path = tmp_path / "dc.h5"
+    with CollisionStore(path, 6, 2) as store:
+        for r in range(3):
+            store.append(round_=r, **_rows(rng, 5000))
+    data = path.read_bytes()
+    (tmp_path / "cut.h5").write_bytes(data[: len(data) * 9 // 10])
+    with pytest.raises(StoreCorruptedError, match=r"cut\.h5: cannot be opened as HDF5 \(.*truncated file"):
+        CollisionStore(tmp_path / "cut.h5", 6, 2)
+    # flip bytes inside the data chunks: the checksums catch it on read
+    with CollisionStore(path, 6, 2) as store:
+        offset = store._h5["z"].id.get_chunk_info(0).byte_offset
+    bad = bytearray(data)
+    bad[offset + 100: offset + 164] = b"\xff" * 64
+    (tmp_path / "flipped.h5").write_bytes(bytes(bad))
+    with CollisionStore(tmp_path / "flipped.h5", 6, 2) as store, \
+            pytest.raises(StoreCorruptedError, match=r"flipped\.h5: its data is corrupted"):
+        store.read()

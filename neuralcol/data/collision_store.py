@@ -5,6 +5,9 @@ Columns (N rows): ``id`` int64 (0, 1, 2, ... in append order), ``z`` (N, D) floa
 active-learning round that added the row; 0 = bootstrap), ``origin`` int8 (0 uniform sample from U(Z),
 1 projected onto the detector's boundary).
 
+Integrity: every column is stored with HDF5's fletcher32 checksum per chunk, so a corrupted or truncated
+file fails on open or read with :class:`StoreCorruptedError` naming it.
+
 Crash safety: rows are written past the committed length, flushed, and only then is the file attribute
 ``committed`` advanced and flushed again. A reader sees exactly the committed rows, so a crash in the middle
 of an append leaves every earlier round intact (the partial rows are overwritten by the next append).
@@ -76,7 +79,9 @@ class CollisionStore:
                 shape = {"z": (0, self.latent_dim), "pd_sub": (0, self.n_parts)}.get(name, (0,))
                 maxshape = (None,) + shape[1:]
                 chunks = (4096,) + shape[1:]
-                self._h5.create_dataset(name, shape=shape, maxshape=maxshape, dtype=dtype, chunks=chunks)
+                # fletcher32: a checksum per chunk, so corrupted bytes fail the read instead of passing as data
+                self._h5.create_dataset(name, shape=shape, maxshape=maxshape, dtype=dtype, chunks=chunks,
+                                        fletcher32=True)
             self._h5.attrs["committed"] = 0
             self._h5.flush()
         self._check()
@@ -143,7 +148,11 @@ class CollisionStore:
     def read(self, index=None) -> CollisionRows:
         """Committed rows (all, or ``index`` into them)."""
         n = len(self)
-        cols = {name: self._h5[name][:n] for name in _COLUMNS}
+        try:
+            cols = {name: self._h5[name][:n] for name in _COLUMNS}
+        except OSError as exc:
+            raise StoreCorruptedError(f"{self.path}: its data is corrupted ({exc}); restore it from a backup, or "
+                                      "move it away to start a new D_c (a run then restarts from round 0)") from exc
         if index is not None:
             cols = {k: v[index] for k, v in cols.items()}
         return CollisionRows(**cols)

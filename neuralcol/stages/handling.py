@@ -154,8 +154,12 @@ def evaluate_handler(net: torch.nn.Module, oracle: LatentOracle, z_user: torch.T
         return handle_codes(net, z_user[torch.as_tensor(rows)], space.box_lo, space.box_hi,
                             replace(settings, margin=margin), batch_size=batch_size)
 
-    def label(z: torch.Tensor) -> np.ndarray:
-        return oracle(z, desc="labeling handled codes").pd
+    label_failures = [0]
+
+    def label(z: torch.Tensor) -> np.ndarray:  # NaN PD where the exact labeler failed (reported, counted)
+        lab = oracle(z, desc="labeling handled codes")
+        label_failures[0] += int(getattr(lab, "n_failed", 0))
+        return lab.pd
 
     t0 = time.perf_counter()
     res = handle(np.arange(n), settings.margin)
@@ -170,6 +174,7 @@ def evaluate_handler(net: torch.nn.Module, oracle: LatentOracle, z_user: torch.T
         "seconds_per_mesh": seconds / max(n, 1),
         "label_seconds": label_seconds,
         "n_nonfinite": int((~finite).sum()),
+        "n_label_failures": label_failures[0],  # results the exact labeler failed on (NaN PD, counted as failed)
         "n_detector_infeasible": int((finite & ~res.feasible.numpy()).sum()),
         "n_not_converged": int((finite & ~res.converged.numpy()).sum()),
         "mean_outer_iterations": float(res.outer.float().mean()) if n else float("nan"),

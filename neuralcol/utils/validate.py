@@ -50,6 +50,9 @@ def config_problems(cfg: DictConfig) -> list[str]:
     need("labeling.labeler.touch_tol", lambda v: float(v) >= 0, "must be >= 0")
     need("method.projected_fraction", lambda v: 0 <= float(v) <= 1, "must lie in [0, 1]")
     need("labeling.pool.workers", lambda v: is_int(v) and v >= 0, "must be an integer >= 0 (0 or 1: in-process)")
+    if _get(cfg, "labeling.pool.timeout") is not None:
+        need("labeling.pool.timeout", lambda v: float(v) > 0, "must be > 0 seconds, or null for no limit")
+    need("labeling.pool.max_restarts", lambda v: is_int(v) and v >= 0, "must be an integer >= 0")
     margin = _get(cfg, "handler.alm.margin")
     margins = _get(cfg, "handler.verify_margins")
     if margins is not None:
