@@ -84,6 +84,15 @@ def shared_test_set(oracle: LatentOracle, det_cfg, latent_key: str, cache_dir: s
                                 int(det["test_seed"]), desc="labeling the test set")
 
 
+def _label_failures(path: Path) -> int:
+    """Codes of a cached uniform-sample store the exact labeler failed on (dropped and replaced; 0 if none)."""
+    import h5py
+    from filelock import FileLock
+
+    with FileLock(str(path) + ".lock"), h5py.File(path, "r") as h5:  # the lock uniform_rows writes under
+        return int(h5.attrs.get("n_label_failures", 0))
+
+
 def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key: str, seed: int,
                    cache_dir: str | Path, run_dir: str | Path, logger=None, round_eval=None) -> dict:
     """Run one method end to end (or resume it); returns ``{"rounds": [...], "detector": {...}}``.
@@ -107,6 +116,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     t0 = time.perf_counter()
     test, test_label_s, test_labeled = shared_test_set(oracle, det, latent_key, cache_dir)
     test_s = time.perf_counter() - t0
+    test_failures = _label_failures(shared / f"test_s{det['test_seed']}.h5")
     # 2. D_c, the acquisition and the rounds
     pd_unit = float(labeler.cap)
     dm = CollisionDataModule(run_dir / "dc.h5", space.dim, space.n_parts, int(det["batch_size"]), pd_unit,
@@ -148,7 +158,8 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
         return {"method": name, "stopped_by": rounds_cb.stopped_by, "elbow_dataset_size": rounds_cb.elbow,
                 "test_set": {"n": len(test.z), "seed": int(det["test_seed"]),
                              "base_rate": float(np.mean(test.collides)), "labeled_now": test_labeled,
-                             "label_seconds": test_label_s, "seconds": test_s},
+                             "label_seconds": test_label_s, "seconds": test_s,
+                             "n_label_failures": test_failures},
                 "pd_unit": pd_unit, "n_parameters": int(sum(p.numel() for p in net.parameters())),
                 "net": {k: det["net"][k] for k in ("state_dim", "hidden")}}
 
