@@ -111,17 +111,10 @@ def label_group(labeler: ExactLabeler, vertices: np.ndarray, workers: int) -> li
     """Labels of the meshes (B, V, 3) of one topology; a mesh that fails alone gets its exception instead."""
     chunk_size = max(1, min(32, -(-len(vertices) // (4 * max(workers, 1)))))  # ~4 chunks per worker
     with LabelPool(labeler, workers=workers, chunk_size=chunk_size) as pool:
-        try:
-            labels = pool.label(vertices)
-        except Exception:  # find the culprit(s), label the others
-            out: list[Label | BaseException] = []
-            for v in vertices:
-                try:
-                    out.append(labeler.label(v))
-                except Exception as exc:
-                    out.append(exc)
-            return out
-    return [Label(bool(c), int(n), float(p), s) for c, n, p, s in zip(*labels)]
+        report = pool.label_report(vertices)  # a failing mesh is retried alone, then reported with its reason
+    failed = {f.index: RuntimeError(f.reason) for f in report.failures}
+    return [failed[i] if i in failed else Label(bool(c), int(n), float(p), s)
+            for i, (c, n, p, s) in enumerate(zip(*report.labels))]
 
 
 def format_line(name: str, label: Label, as_json: bool, name_width: int = 0, pairs_width: int = 0) -> str:
