@@ -29,6 +29,7 @@ from neuralcol.active.newton import newton_project
 from neuralcol.active.oracle import LatentOracle
 from neuralcol.data.collision_store import ORIGIN_PROJECTED, ORIGIN_UNIFORM, CollisionStore
 from neuralcol.data.uniform_samples import uniform_rows
+from neuralcol.metrics.projection import projection_quality
 
 
 class Acquired(NamedTuple):
@@ -118,7 +119,8 @@ class ProjectedAcquisition(UniformAcquisition):
         gen = np.random.default_rng([self.seed, round_])
         n = min(n, len(store))
         pick = np.sort(gen.choice(len(store), size=n, replace=False))
-        z0 = torch.as_tensor(store.read(pick).z)
+        start = store.read(pick)
+        z0 = torch.as_tensor(start.z)
         dev = next(net.parameters()).device
         # in float64: eps_z = 1e-7 (paper) is below float32's resolution, so float32 iterates never settle
         net64 = copy.deepcopy(net).double().eval()
@@ -128,8 +130,13 @@ class ProjectedAcquisition(UniformAcquisition):
         t_proj = time.perf_counter() - t0
         lab = self.oracle(z, desc="labeling projected samples")
         n_failed = lab.n_failed
+        kept = np.flatnonzero(proj.finite.cpu().numpy())  # rows of `pick` behind each projected code
+        if lab.ok is not None:
+            kept = kept[np.asarray(lab.ok, bool)]
         lab = lab.without_failures()  # never written to D_c; the uniform rows make up for them
         z = torch.as_tensor(lab.z)
+        quality = projection_quality(start.z[kept], lab.z, lab.pd, start.pd[kept], float(self.oracle.pool.labeler.eps),
+                                     self.box_lo.numpy(), self.box_hi.numpy(), self.oracle.space.n_parts)
         with torch.no_grad():
             p = torch.sigmoid(net64(z.to(dev, torch.float64)).logit).cpu().numpy() if len(z) else np.zeros(0)
         info = {"n_projected": int(len(z)), "n_projection_failed": int((~proj.finite).sum()),
@@ -138,7 +145,8 @@ class ProjectedAcquisition(UniformAcquisition):
                 "newton_mean_iterations": float(proj.iterations.float().mean()) if n else float("nan"),
                 "projected_prob_mean": float(p.mean()) if len(p) else float("nan"),
                 "projected_collide_fraction": float(lab.collides.mean()) if len(z) else float("nan"),
-                "projected_boundary_fraction": float((lab.subset == 2).mean()) if len(z) else float("nan")}
+                "projected_boundary_fraction": float((lab.subset == 2).mean()) if len(z) else float("nan"),
+                "projection": quality}
         return Acquired(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset,
                         np.full(len(z), ORIGIN_PROJECTED, np.int8), lab.seconds, t_proj, info)
 

@@ -9,6 +9,12 @@ itself the step ``~ r / |grad|`` explodes wherever the sigmoid saturates (seen w
 projected exactly in one step. Steps are limited to ``max_step`` times the box's largest side, iterates
 are kept inside the box Z, and a sample stops when the largest change of its coordinates relative to its
 largest coordinate (floored at 1) falls below ``eps_z`` (paper: 1e-7), or after ``max_iter`` steps.
+
+Coordinates (``coordinates``): ``"box"`` (default) takes the Gauss-Newton step in the box-normalised
+coordinates ``x = (z - c) / h`` (c centre, h half-range of each axis), so every axis moves in proportion to
+its own range; ``"raw"`` takes it in the raw latent coordinates as the paper writes it. In raw coordinates
+the step along axis j is ``~ g_x,j / h_j^2``: with level-1 codes spanning hundreds of units and level-2 codes
+tens, level-1 axes barely move and level-2 axes are thrown to the box faces (docs/diagnosis.md).
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ class Projection(NamedTuple):
 
 def newton_project(logit_fn: Callable[[torch.Tensor], torch.Tensor], z0: torch.Tensor, box_lo: torch.Tensor,
                    box_hi: torch.Tensor, eps_z: float = 1e-7, max_iter: int = 50, damping: float = 1e-6,
-                   max_step: float = 0.25) -> Projection:
+                   max_step: float = 0.25, coordinates: str = "box") -> Projection:
     """Project latent codes onto ``{z : logit_fn(z) = 0}`` = the 0.5 level set (batched, device-agnostic).
 
     Args:
@@ -42,7 +48,8 @@ def newton_project(logit_fn: Callable[[torch.Tensor], torch.Tensor], z0: torch.T
         eps_z: stop when max |dz| / max(1, max |z|) < eps_z (paper: 1e-7).
         max_iter: iteration cap.
         damping: Levenberg term of the Gauss-Newton Hessian (keeps flat regions from exploding).
-        max_step: largest step, as a fraction of the box's largest side.
+        max_step: largest step, as a fraction of the box's largest side (``"box"``: of every side).
+        coordinates: ``"box"`` (step and stopping test in box-normalised coordinates) or ``"raw"`` (paper).
 
     Returns:
         Projection.
@@ -50,9 +57,16 @@ def newton_project(logit_fn: Callable[[torch.Tensor], torch.Tensor], z0: torch.T
     if eps_z <= 0 or max_iter < 1 or damping < 0 or max_step <= 0:
         raise ValueError(f"eps_z={eps_z} must be > 0, max_iter={max_iter} >= 1, damping={damping} >= 0, "
                          f"max_step={max_step} > 0")
+    if coordinates not in ("box", "raw"):
+        raise ValueError(f"coordinates={coordinates!r}; use 'box' (normalised) or 'raw' (paper)")
     z = z0.detach().clone()
     lo, hi = box_lo.to(z), box_hi.to(z)
-    step_cap = max_step * float((hi - lo).max())
+    if coordinates == "box":
+        center, scale = (lo + hi) / 2, ((hi - lo) / 2).clamp_min(torch.finfo(z.dtype).tiny)
+    else:
+        center, scale = torch.zeros_like(lo), torch.ones_like(lo)
+    # largest step (max-norm, in the coordinates the step is taken in): max_step x the box's largest side
+    step_cap = max_step * float((hi - lo).max()) if coordinates == "raw" else 2.0 * max_step  # normalised sides: 2
     n = z.shape[0]
     active = torch.ones(n, dtype=torch.bool, device=z.device)
     converged = torch.zeros(n, dtype=torch.bool, device=z.device)
@@ -67,15 +81,17 @@ def newton_project(logit_fn: Callable[[torch.Tensor], torch.Tensor], z0: torch.T
             p = logit_fn(za)
             (grad,) = torch.autograd.grad(p.sum(), za)
         r = p.detach()[:, None]
-        step = grad * r / (damping + (grad * grad).sum(-1, keepdim=True))
+        gx = grad * scale  # gradient w.r.t. the (normalised) coordinates x = (z - center) / scale
+        step = gx * r / (damping + (gx * gx).sum(-1, keepdim=True))  # step in x
         big = step.abs().amax(-1, keepdim=True)
         step = torch.where(big > step_cap, step * (step_cap / big), step)
-        new = torch.maximum(torch.minimum(za.detach() - step, hi), lo)
+        new = torch.maximum(torch.minimum(za.detach() - step * scale, hi), lo)
         ok = torch.isfinite(new).all(-1) & torch.isfinite(p.detach())
         finite[idx[~ok]] = False
         active[idx[~ok]] = False
         idx, new, old = idx[ok], new[ok], za.detach()[ok]
-        change = (new - old).abs().amax(-1) / old.abs().amax(-1).clamp_min(1.0)
+        xn, xo = (new - center) / scale, (old - center) / scale
+        change = (xn - xo).abs().amax(-1) / xo.abs().amax(-1).clamp_min(1.0)
         z[idx] = new
         iters[idx] += 1
         done = change < eps_z

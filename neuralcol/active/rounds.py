@@ -28,17 +28,26 @@ from neuralcol.utils.faults import fault_point
 
 @dataclass(frozen=True)
 class Schedule:
-    """How the detector is trained in a round: epochs, Adam lr, batch size, and whether the weights and the
-    optimizer restart from scratch (baselines) or continue (active fine-tuning)."""
+    """How the detector is trained in a round: epochs, Adam lr, batch size, whether the weights and the
+    optimizer restart from scratch (baselines) or continue (active fine-tuning), and a floor on the optimizer
+    steps: a round runs ``max(epochs, ceil(min_steps / batches per epoch))`` epochs, so a budget meant for
+    large data sets (the paper's 50 epochs of fine-tuning at 2*10^5+ rows) does not shrink to a few hundred
+    steps on a few thousand rows (docs/diagnosis.md, cause 2). ``min_steps = 0``: epochs only (paper)."""
 
     epochs: int
     lr: float
     batch_size: int
     reinit: bool = False
+    min_steps: int = 0
 
     def __post_init__(self):
-        if self.epochs < 1 or self.lr <= 0 or self.batch_size < 1:
-            raise ValueError(f"schedule {self}: epochs and batch_size must be >= 1 and lr > 0")
+        if self.epochs < 1 or self.lr <= 0 or self.batch_size < 1 or self.min_steps < 0:
+            raise ValueError(f"schedule {self}: epochs and batch_size must be >= 1, lr > 0 and min_steps >= 0")
+
+    def epochs_for(self, n_train: int) -> int:
+        """Epochs of a round on ``n_train`` training rows."""
+        batches = max(1, -(-int(n_train) // self.batch_size))  # ceil
+        return max(self.epochs, -(-self.min_steps // batches))
 
 
 def write_json_atomic(path: Path, obj) -> None:
@@ -91,7 +100,8 @@ class DataRounds(L.Callback):
         self._best: tuple[float, int, dict] | None = None  # (val accuracy, epoch, weights) of this round
         # state saved with checkpoints
         self.round = 0
-        self.round_end_epoch = bootstrap.epochs - 1
+        self.round_start_epoch = 0
+        self.round_end_epoch = bootstrap.epochs - 1  # set from the bootstrap rows when the fit starts
         self.rounds: list[dict] = []
         self.finished = False
         self.stopped_by: str | None = None
@@ -102,7 +112,8 @@ class DataRounds(L.Callback):
 
     @property
     def max_epochs(self) -> int:
-        return self.bootstrap.epochs + self.max_rounds * self.update.epochs
+        """An upper bound of the epochs of all rounds (the callback stops the fit after the last round)."""
+        return self.bootstrap.epochs_for(1) + self.max_rounds * self.update.epochs_for(1)
 
     def add_label_seconds(self, seconds: float) -> None:
         self.seconds["label"] += float(seconds)
@@ -112,7 +123,8 @@ class DataRounds(L.Callback):
 
     # ---------------------------------------------------------------- checkpoint state
     def state_dict(self) -> dict:
-        return {"round": self.round, "round_end_epoch": self.round_end_epoch, "rounds": self.rounds,
+        return {"round": self.round, "round_start_epoch": self.round_start_epoch,
+                "round_end_epoch": self.round_end_epoch, "rounds": self.rounds,
                 "finished": self.finished, "stopped_by": self.stopped_by, "elbow": self.elbow,
                 "seconds": dict(self.seconds), "store_len": self.store_len, "batch_size": self.dm.batch_size,
                 "acquire": self.acquire.state_dict(), "schedules": [asdict(self.bootstrap), asdict(self.update)]}
@@ -124,6 +136,8 @@ class DataRounds(L.Callback):
                              f"{state['schedules']}, the config asks for {wanted}; resume with the same method "
                              "and detector settings or start a new run directory")
         self.round, self.round_end_epoch = int(state["round"]), int(state["round_end_epoch"])
+        self.round_start_epoch = int(state.get("round_start_epoch",
+                                               self.round_end_epoch - self.schedule().epochs + 1))
         self.rounds, self.finished = list(state["rounds"]), bool(state["finished"])
         self.stopped_by, self.elbow = state["stopped_by"], state["elbow"]
         self.seconds = dict(state["seconds"])
@@ -141,6 +155,10 @@ class DataRounds(L.Callback):
             self.store_len = len(self.dm)
             self.dm.batch_size = self.schedule().batch_size
             pl_module.set_lr(self.schedule().lr)
+            if self.dm.n_train == 0:
+                self.dm.refresh()
+            self.round_start_epoch = 0
+            self.round_end_epoch = self.bootstrap.epochs_for(self.dm.n_train) - 1
 
     def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         fault_point("train_epoch")
@@ -148,7 +166,7 @@ class DataRounds(L.Callback):
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         acc = trainer.callback_metrics.get("val/accuracy")
-        first_epoch = self.round_end_epoch - self.schedule().epochs + 1
+        first_epoch = self.round_start_epoch
         # (a resumed fit re-validates the checkpoint's epoch, which belongs to the previous round: skipped)
         if trainer.sanity_checking or acc is None or not self.select_best_val or trainer.current_epoch < first_epoch:
             return
@@ -162,17 +180,30 @@ class DataRounds(L.Callback):
         if trainer.current_epoch >= self.round_end_epoch:
             self._finish_round(trainer, pl_module)
 
+    @staticmethod
+    def _log_projection(trainer: L.Trainer, quality: dict, step: int) -> None:
+        """TensorBoard scalars ``projection/<key>`` against |D_c| (no-op without a TensorBoard logger)."""
+        writer = getattr(getattr(trainer, "logger", None), "experiment", None)
+        if writer is None or not hasattr(writer, "add_scalar"):
+            return
+        flat = {**{k: v for k, v in quality.items() if not isinstance(v, dict)},
+                **{f"start_{k}": v for k, v in quality.get("start", {}).items()}}
+        for key, val in flat.items():
+            if isinstance(val, (int, float)) and np.isfinite(val):
+                writer.add_scalar(f"projection/{key}", float(val), global_step=step)
+
     def _finish_round(self, trainer: L.Trainer, pl_module) -> None:
         selected = {}
         if self._best is not None:
             val_acc, epoch, state = self._best
             pl_module.net.load_state_dict(state)
-            first_epoch = self.round_end_epoch - self.schedule().epochs + 1
+            first_epoch = self.round_start_epoch
             selected = {"val_accuracy": val_acc, "selected_epoch": epoch - first_epoch}
             self._best = None
         metrics = self.evaluate(pl_module)
         rows = self.dm.store.read()
         record = {"round": self.round, "dataset_size": len(self.dm), **metrics, **selected,
+                  "epochs": self.round_end_epoch - self.round_start_epoch + 1,
                   "label_seconds": self.seconds["label"], "train_seconds": self.seconds["train"],
                   "project_seconds": self.seconds["project"],
                   "n_projected_total": int((rows.origin == 1).sum()),
@@ -195,13 +226,17 @@ class DataRounds(L.Callback):
             self.seconds["label"] += new.label_seconds
             self.seconds["project"] += new.project_seconds
             record["next_round_acquisition"] = new.info
+            if "projection" in new.info:  # samples this round's detector projected (they join D_c next round)
+                record["projection"] = new.info["projection"]
+                self._log_projection(trainer, new.info["projection"], len(self.dm))
             self.round += 1
             sched = self.update
             if sched.reinit:
                 pl_module.reinitialize(self.seed * 1000 + self.round)
             pl_module.set_lr(sched.lr)
             self.dm.batch_size = sched.batch_size
-            self.round_end_epoch = trainer.current_epoch + sched.epochs
+            self.round_start_epoch = trainer.current_epoch + 1
+            self.round_end_epoch = trainer.current_epoch + sched.epochs_for(self.dm.n_train)
             self.store_len = len(self.dm)
         if self.on_round is not None:
             self.on_round(self.rounds, self.finished, echo=False)

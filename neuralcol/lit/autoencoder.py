@@ -26,14 +26,20 @@ class AutoencoderLitModule(L.LightningModule):
         scheduler: partial of a LR scheduler, or None.
         edges: (E, 2) long mesh edges for the smoothness prior.
         w_sparsity, w_smoothness, w_balance: prior weights (stage 1).
+        code_noise: latent noise while training: the decoder reconstructs from ``z + code_noise * std(z) * e``
+            (``e ~ N(0, 1)``, ``std`` per latent entry over the batch, not differentiated), so it has to be smooth
+            at the scale of the codes' spread instead of switching between training codes. 0 turns it off. Applied
+            to Z_0 in stage 1 and to the level-2 codes in stage 2; never at validation. See docs/autoencoder.md.
     """
 
     def __init__(self, net: BilevelAutoencoder, stage: int, optimizer: Callable, scheduler: Callable | None = None,
                  edges: torch.Tensor | None = None, w_sparsity: float = 0.0, w_smoothness: float = 0.0,
-                 w_balance: float = 0.0):
+                 w_balance: float = 0.0, code_noise: float = 0.0):
         super().__init__()
         if stage not in (1, 2):
             raise ValueError(f"stage={stage}: must be 1 or 2")
+        if code_noise < 0:
+            raise ValueError(f"code_noise={code_noise}: must be >= 0")
         if stage == 2 and net.level2 is None:
             raise ValueError("stage 2 needs net.level2")
         self.save_hyperparameters(ignore=["net", "edges"])
@@ -55,10 +61,18 @@ class AutoencoderLitModule(L.LightningModule):
         balance = (torch.full_like(usage, 1.0 / k) * torch.log((1.0 / k) / usage.clamp_min(1e-12))).sum()
         return {"entropy": entropy, "smoothness": smooth, "balance": balance}
 
+    def _noisy(self, z: torch.Tensor, split: str) -> torch.Tensor:
+        """(B, D) codes plus latent noise while training (identity at validation or with code_noise = 0)."""
+        sigma = float(self.hparams.code_noise)
+        if split != "train" or sigma == 0.0 or z.shape[0] < 2:
+            return z
+        std = z.detach().std(0, keepdim=True)  # (1, D)
+        return z + sigma * std * torch.randn_like(z)
+
     def step(self, batch, split: str) -> torch.Tensor:
         (x,) = batch
         if self.stage == 1:
-            _, recon = self.net.level1(x)
+            recon = self.net.level1.decode(self._noisy(self.net.level1.encode(x), split))
             mse = F.mse_loss(recon, x)
             pri = self.attention_priors()
             loss = (mse + self.hparams.w_sparsity * pri["entropy"] + self.hparams.w_smoothness * pri["smoothness"]
@@ -66,7 +80,9 @@ class AutoencoderLitModule(L.LightningModule):
             for name, val in pri.items():
                 self.log(f"{split}/{name}", val, on_epoch=True, on_step=False)
         else:
-            recon = self.net.decode(self.net.encode(x))
+            z = self.net.encode(x)
+            k = self.net.level1.n_components
+            recon = self.net.decode(torch.cat([z[:, :k], self._noisy(z[:, k:], split)], dim=1))
             mse = F.mse_loss(recon, x)
             loss = mse
         self.log(f"{split}/mse", mse, on_epoch=True, on_step=False, prog_bar=split == "train")

@@ -31,11 +31,18 @@ class Level1Autoencoder(nn.Module):
         n_components: K = |Z_0|.
         hidden: hidden width of each component MLP (1 -> hidden -> V*F).
         attention_init: (K, V) initial attention logits (e.g. from a spatial clustering), or None for zeros.
+        activation: ``"tanh"`` (component = ``W_out tanh(z w + b)``) or ``"linear"`` (``W_out (z w + b)``, a
+            linear deformation component: decoded features change at the same rate over the whole code range).
     """
 
+    ACTIVATIONS = ("tanh", "linear")
+
     def __init__(self, n_vertices: int, n_components: int, hidden: int = 4,
-                 attention_init: torch.Tensor | None = None):
+                 attention_init: torch.Tensor | None = None, activation: str = "tanh"):
         super().__init__()
+        if activation not in self.ACTIVATIONS:
+            raise ValueError(f"activation={activation!r}; use one of {self.ACTIVATIONS}")
+        self.activation = activation
         self.n_vertices = n_vertices
         self.n_components = n_components
         width = n_vertices * FEATURE_CHANNELS
@@ -59,7 +66,9 @@ class Level1Autoencoder(nn.Module):
 
     def components(self, z0: torch.Tensor) -> torch.Tensor:
         """Unmasked component outputs g_k(z_k): (B, K) -> (B, K, V, F)."""
-        h = torch.tanh(z0[..., None] * self.comp_in_w + self.comp_in_b)  # (B, K, H)
+        h = z0[..., None] * self.comp_in_w + self.comp_in_b  # (B, K, H)
+        if self.activation == "tanh":
+            h = torch.tanh(h)
         out = torch.einsum("bkh,khw->bkw", h, self.comp_out)  # (B, K, V*F)
         return out.view(z0.shape[0], self.n_components, self.n_vertices, FEATURE_CHANNELS)
 

@@ -46,14 +46,37 @@ class CollisionDetector(nn.Module):
             and CP (the raw level-1 codes span hundreds of units, the level-2 ones tens; unscaled inputs
             train measurably worse, see docs/detector.md). The map is part of the network (saved buffers),
             so gradients w.r.t. the raw codes, used by the projector and the handler, include it.
+        code_features: optional ``(w (K, H), b (K, H), activation)``: the first layer of the latent space's
+            level-1 decoder (``Level1Autoencoder.comp_in_w``, ``comp_in_b``, ``activation``). Each sub-domain's
+            input then also holds ``act(z0_i w_i + b_i)`` (H values), the decoder's own reading of its code
+            (frozen buffers, differentiable in z). Where the decoder's tanh units switch sharply inside the box
+            the label changes sharply in z0 but smoothly in these features (measured in docs/diagnosis.md).
+            None: the paper's inputs, Z_all only.
     """
 
     def __init__(self, n_components: int, level2_dim: int, state_dim: int = 64, hidden: int = 128,
-                 box_lo: torch.Tensor | None = None, box_hi: torch.Tensor | None = None):
+                 box_lo: torch.Tensor | None = None, box_hi: torch.Tensor | None = None,
+                 code_features: tuple[torch.Tensor, torch.Tensor, str] | None = None):
         super().__init__()
         self.n_components = n_components
         self.level2_dim = level2_dim
         latent_dim = n_components * (1 + level2_dim)
+        n_feat = 0
+        self.feature_activation = None
+        if code_features is not None:
+            fw, fb, act = code_features
+            fw, fb = torch.as_tensor(fw, dtype=torch.float32), torch.as_tensor(fb, dtype=torch.float32)
+            if fw.ndim != 2 or fw.shape[0] != n_components or fb.shape != fw.shape:
+                raise ValueError(f"code_features: w and b must both be ({n_components}, H), got {tuple(fw.shape)} "
+                                 f"and {tuple(fb.shape)}")
+            if act not in ("tanh", "linear"):
+                raise ValueError(f"code_features activation {act!r}; use 'tanh' or 'linear'")
+            self.register_buffer("feature_w", fw.clone())
+            self.register_buffer("feature_b", fb.clone())
+            self.feature_activation = act
+            n_feat = fw.shape[1]
+        self.n_code_features = n_feat
+        part_dim = 1 + level2_dim + n_feat
         center, half = torch.zeros(latent_dim), torch.ones(latent_dim)
         if (box_lo is None) != (box_hi is None):
             raise ValueError("give both box_lo and box_hi, or neither")
@@ -64,8 +87,8 @@ class CollisionDetector(nn.Module):
             center, half = (lo + hi) / 2, (hi - lo) / 2
         self.register_buffer("center", center)
         self.register_buffer("half_range", half)
-        self.cse = nn.Sequential(_mlp([latent_dim, hidden, state_dim], nn.CELU), nn.Tanh())
-        self.cp = _mlp([state_dim + 1 + level2_dim, hidden, hidden, 1], nn.CELU)
+        self.cse = nn.Sequential(_mlp([n_components * part_dim, hidden, state_dim], nn.CELU), nn.Tanh())
+        self.cp = _mlp([state_dim + part_dim, hidden, hidden, 1], nn.CELU)
         self.mlp_c = _mlp([n_components, hidden, 1], nn.CELU)
 
     @property
@@ -85,8 +108,15 @@ class CollisionDetector(nn.Module):
         if z_all.ndim != 2 or z_all.shape[1] != self.latent_dim:
             raise ValueError(f"z_all has shape {tuple(z_all.shape)}, expected (B, {self.latent_dim})")
         x = (z_all - self.center) / self.half_range  # the box -> [-1, 1]
-        s0 = self.cse(x)  # (B, S)
         parts = self.split(x)  # (B, K, 1 + d)
+        cse_in = x
+        if self.feature_activation is not None:
+            h = z_all[:, : self.n_components, None] * self.feature_w + self.feature_b  # (B, K, H), raw codes
+            if self.feature_activation == "tanh":
+                h = torch.tanh(h)
+            parts = torch.cat([parts, h], dim=-1)  # (B, K, 1 + d + H)
+            cse_in = torch.cat([x, h.flatten(1)], dim=-1)  # (B, D + K H)
+        s0 = self.cse(cse_in)  # (B, S)
         cp_in = torch.cat([s0[:, None, :].expand(-1, self.n_components, -1), parts], dim=-1)
         s = self.cp(cp_in)[..., 0]  # (B, K)
         logit = self.mlp_c(s)[:, 0]

@@ -109,6 +109,7 @@ class LatentSpace(nn.Module):
         l1 = self.net.level1
         l2 = self.net.level2
         arch = {"n_vertices": l1.n_vertices, "n_components": l1.n_components, "hidden": l1.comp_in_w.shape[1],
+                "activation": l1.activation,
                 "level2": None if l2 is None else {"latent_dim": l2.latent_dim,
                                                     "hidden": l2.decoders[0][0].out_features}}
         blob = {"arch": arch, "state": self.state_dict(), "acap_kwargs": self.acap_kwargs,
@@ -122,7 +123,8 @@ class LatentSpace(nn.Module):
     def load(cls, path: str | Path, map_location="cpu") -> LatentSpace:
         blob = torch.load(path, map_location=map_location, weights_only=False)
         arch, state = blob["arch"], blob["state"]
-        l1 = Level1Autoencoder(arch["n_vertices"], arch["n_components"], arch["hidden"])
+        l1 = Level1Autoencoder(arch["n_vertices"], arch["n_components"], arch["hidden"],
+                               activation=arch.get("activation", "tanh"))
         l2 = None
         if arch["level2"] is not None:
             l2 = Level2Autoencoders(state["partition"], arch["n_components"], arch["level2"]["latent_dim"],

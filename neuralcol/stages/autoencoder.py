@@ -177,13 +177,14 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
     k = int(lat["n_components"])
     l1cfg, l2cfg = ae["level1"], ae["level2"]
     init = spatial_attention_init(rest, k, float(l1cfg["attention_init_scale"]), seed)
-    level1 = Level1Autoencoder(ds.n_vertices, k, hidden=int(l1cfg["hidden"]), attention_init=init)
+    level1 = Level1Autoencoder(ds.n_vertices, k, hidden=int(l1cfg["hidden"]), attention_init=init,
+                               activation=str(l1cfg.get("activation", "tanh")))
     net = BilevelAutoencoder(level1)
     dm = FeatureDataModule(x, train_idx, val_idx, batch_size=int(ae["batch_size"]), seed=seed)
     stage1 = AutoencoderLitModule(
         net, 1, optimizer=instantiate(ae["optimizer"], lr=l1cfg["lr"]), scheduler=_scheduler(ae, int(l1cfg["epochs"])),
         edges=torch.as_tensor(edges), w_sparsity=l1cfg["w_sparsity"], w_smoothness=l1cfg["w_smoothness"],
-        w_balance=l1cfg["w_balance"])
+        w_balance=l1cfg["w_balance"], code_noise=float(l1cfg.get("code_noise", 0.0)))
     _trainer(ae, int(l1cfg["epochs"]), logger).fit(stage1, dm)
     with torch.no_grad():
         raw_part = net.level1.attention().argmax(0).cpu().numpy()
@@ -193,13 +194,19 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
     net.level2 = Level2Autoencoders(torch.as_tensor(part), k, latent_dim=int(lat["level2_dim"]),
                                     hidden=int(l2cfg["hidden"]))
     stage2 = AutoencoderLitModule(net, 2, optimizer=instantiate(ae["optimizer"], lr=l2cfg["lr"]),
-                                  scheduler=_scheduler(ae, int(l2cfg["epochs"])))
+                                  scheduler=_scheduler(ae, int(l2cfg["epochs"])),
+                                  code_noise=float(l2cfg.get("code_noise", 0.0)))
     if int(l2cfg["epochs"]) > 0:
         _trainer(ae, int(l2cfg["epochs"]), logger).fit(stage2, dm)
     net.eval().cpu()
     with torch.no_grad():
         z = net.encode(x)
-    lo, hi = z.amin(0), z.amax(0)
+    box_from = str(ae.get("box_from", "all"))
+    if box_from not in ("train", "all"):
+        raise ValueError(f"autoencoder.box_from={box_from!r}; use 'train' (codes of the meshes the autoencoder "
+                         "trained on) or 'all' (every mesh of the data set)")
+    z_box = z[torch.as_tensor(train_idx)] if box_from == "train" else z
+    lo, hi = z_box.amin(0), z_box.amax(0)
     margin = float(ae.get("box_margin", 0.0)) * (hi - lo)
     acap_kwargs = dict(feats.acap.settings)
     space = LatentSpace(net, normalizer, rest, faces, acap_kwargs, lo - margin, hi + margin,
@@ -216,6 +223,7 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
         "pieces": report_part.pieces_after, "train_seconds": time.perf_counter() - t_start,
         "train_index": train_idx.tolist(), "val_index": val_idx.tolist(),
         "n_parameters": int(sum(p.numel() for p in net.parameters())),
+        "box_from": box_from,
     }
     space.meta = report
     return space, report

@@ -44,17 +44,26 @@ def samples_cache_dir(cache_dir: str | Path, latent_key: str, labeler) -> Path:
     return folder
 
 
+def decoder_code_features(space) -> tuple[torch.Tensor, torch.Tensor, str]:
+    """The first layer of the latent space's level-1 decoder, ``(w (K, H), b (K, H), activation)``."""
+    l1 = space.net.level1
+    return l1.comp_in_w.detach().cpu().float(), l1.comp_in_b.detach().cpu().float(), l1.activation
+
+
 def build_detector(space, det: dict) -> CollisionDetector:
     l2 = (space.dim - space.n_parts) // space.n_parts
     box = (space.box_lo.detach().cpu(), space.box_hi.detach().cpu()) if det["net"]["normalize_inputs"] \
         else (None, None)
+    feats = decoder_code_features(space) if det["net"].get("decoder_features", False) else None
     return CollisionDetector(space.n_parts, l2, state_dim=int(det["net"]["state_dim"]),
-                             hidden=int(det["net"]["hidden"]), box_lo=box[0], box_hi=box[1])
+                             hidden=int(det["net"]["hidden"]), box_lo=box[0], box_hi=box[1], code_features=feats)
 
 
 def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, pd_unit: float) -> None:
     blob = {"state": net.state_dict(), "n_components": net.n_components, "level2_dim": net.level2_dim,
-            "net": det["net"], "method": method["name"], "pd_unit": pd_unit}
+            "net": det["net"], "method": method["name"], "pd_unit": pd_unit,
+            "code_features": None if net.feature_activation is None else
+            {"hidden": net.n_code_features, "activation": net.feature_activation}}
     tmp = path.with_name(path.name + ".tmp")
     torch.save(blob, tmp)
     tmp.replace(path)
@@ -63,8 +72,13 @@ def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, p
 def load_detector(path: str | Path, map_location="cpu") -> tuple[CollisionDetector, dict]:
     """The final detector of a run (``detector.pt``) and its metadata."""
     blob = torch.load(path, map_location=map_location, weights_only=False)
+    cf = blob.get("code_features")
+    feats = None
+    if cf is not None:  # shapes only; the values come with the state dict
+        zeros = torch.zeros(blob["n_components"], int(cf["hidden"]))
+        feats = (zeros, zeros, cf["activation"])
     net = CollisionDetector(blob["n_components"], blob["level2_dim"], state_dim=int(blob["net"]["state_dim"]),
-                            hidden=int(blob["net"]["hidden"]))
+                            hidden=int(blob["net"]["hidden"]), code_features=feats)
     net.load_state_dict(blob["state"])
     return net, {k: v for k, v in blob.items() if k != "state"}
 
@@ -121,7 +135,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     pd_unit = float(labeler.cap)
     dm = CollisionDataModule(run_dir / "dc.h5", space.dim, space.n_parts, int(det["batch_size"]), pd_unit,
                              float(det["targets"]["pd_clip"]), use_boundary_set=bool(method["use_boundary_set"]),
-                             seed=seed)
+                             seed=seed, pd_floor=float(det["targets"].get("pd_floor", -1.0)))
     pool_path = shared / f"uniform_s{seed}.h5"
     if method["acquisition"] == "projected":
         acquire = ProjectedAcquisition(pool_path, oracle, seed, space.box_lo, space.box_hi,
