@@ -48,11 +48,23 @@ PARTS = ("latent", "curve", "projection")
 
 
 def _space(cfg: DictConfig):
-    """The data set, its latent space (trained or from the cache, as ``experiments.run`` would) and its key."""
+    """The data set, its latent space (trained or from the cache, as ``experiments.run`` would, or the file
+    ``diagnose.latent_space``) and its report (``cache_key`` names its caches of labeled samples)."""
     from neuralcol.data.features import dataset_features
+    from neuralcol.nn.latent_space import LatentSpace
     from neuralcol.stages.autoencoder import train_or_load_latent_space
 
     ds = instantiate(cfg.dataset.source)
+    if cfg.diagnose.get("latent_space"):
+        path = Path(str(cfg.diagnose.latent_space))
+        if not path.is_file():
+            raise UserInputError(f"diagnose.latent_space={path}: no such file; give a latent_space.pt of "
+                                 f"{cfg.paths.cache_dir}/autoencoders/<key>/")
+        space = LatentSpace.load(path)
+        if space.rest_vertices.shape[0] != ds.n_vertices:
+            raise UserInputError(f"diagnose.latent_space={path}: {space.rest_vertices.shape[0]} vertices, the "
+                                 f"data set {cfg.dataset.name} has {ds.n_vertices}")
+        return ds, space, {**space.meta, "cache_key": path.parent.name}
     acap_cfg = OmegaConf.to_container(cfg.acap, resolve=True)
     norm_cfg = acap_cfg.pop("normalizer")
     feats = dataset_features(ds, cfg.dataset.reference_index, acap_cfg, norm_cfg,

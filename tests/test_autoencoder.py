@@ -108,3 +108,51 @@ def test_split_is_fixed_and_disjoint():
 def test_edges_helper_consistency(tube_dataset):
     e = edge_topology(tube_dataset.faces.numpy()).edges
     assert e.shape[1] == 2
+
+
+def test_box_spans_the_training_codes(tube_space, tube_dataset):
+    """autoencoder.box_from=train (default): Z = [min, max] of the codes of the meshes the autoencoder trained
+    on; the held-out meshes' codes may lie outside."""
+    space, report, *_ = tube_space
+    assert report["box_from"] == "train" and len(report["val_index"]) > 0
+    z = space.encode(tube_dataset.vertices)
+    tr = torch.as_tensor(report["train_index"])
+    torch.testing.assert_close(space.box_lo, z[tr].amin(0), rtol=0, atol=1e-5)
+    torch.testing.assert_close(space.box_hi, z[tr].amax(0), rtol=0, atol=1e-5)
+
+
+def test_linear_components_decode_affinely_and_persist(tmp_path):
+    """activation="linear": each level-1 component is affine in its code (so the decoder moves evenly along
+    the box), and a saved latent space keeps the activation."""
+    torch.manual_seed(0)
+    l1 = Level1Autoencoder(6, 2, hidden=3, activation="linear")
+    z1, z2 = torch.randn(1, 2) * 50, torch.randn(1, 2) * 50
+    for a in (0.25, 0.5, 2.0):
+        torch.testing.assert_close(l1.decode(a * z1 + (1 - a) * z2), a * l1.decode(z1) + (1 - a) * l1.decode(z2),
+                                   rtol=1e-5, atol=1e-4)
+    tanh = Level1Autoencoder(6, 2, hidden=3)
+    tanh.load_state_dict(l1.state_dict())
+    assert not torch.allclose(tanh.decode(z1), l1.decode(z1))
+    try:
+        Level1Autoencoder(6, 2, activation="relu")
+    except ValueError as e:
+        assert "relu" in str(e)
+    else:
+        raise AssertionError("an unknown activation must be refused")
+
+
+def test_code_noise_only_while_training():
+    """code_noise perturbs the codes the decoder sees in training steps, never at validation."""
+    from neuralcol.lit.autoencoder import AutoencoderLitModule
+
+    torch.manual_seed(0)
+    net = BilevelAutoencoder(Level1Autoencoder(5, 2, hidden=3))
+    mod = AutoencoderLitModule(net, 1, optimizer=lambda params: torch.optim.Adam(params), code_noise=0.3)
+    z = torch.randn(8, 2)
+    assert torch.equal(mod._noisy(z, "val"), z)
+    noisy = mod._noisy(z, "train")
+    assert not torch.equal(noisy, z)
+    ratio = ((noisy - z).std(0) / z.std(0)).mean()
+    assert 0.1 < float(ratio) < 0.6, "noise ~ code_noise x the batch std of each code"
+    plain = AutoencoderLitModule(net, 1, optimizer=lambda params: torch.optim.Adam(params))
+    assert torch.equal(plain._noisy(z, "train"), z)

@@ -21,7 +21,7 @@ def _compose(overrides):
 
 
 @pytest.mark.parametrize("preset", ["", "experiment=cpu_scape", "experiment=paper_scape", "detector=tiny",
-                                    "method=supv", "method=supv_bd"])
+                                    "method=supv", "method=supv_bd", "method.start=uncertain"])
 def test_shipped_configs_are_valid(preset):
     assert config_problems(_compose([preset] if preset else [])) == []
 
@@ -37,6 +37,12 @@ def test_shipped_configs_are_valid(preset):
     ("handler.alm.mu0=0", "handler.alm: handler settings"),
     ("labeling.pool.timeout=0", "labeling.pool.timeout=0: must be > 0 seconds"),
     ("labeling.pool.max_restarts=-1", "labeling.pool.max_restarts=-1: must be an integer >= 0"),
+    ("detector.newton.coordinates=normalised", "detector.newton.coordinates='normalised': use one of box, raw"),
+    ("autoencoder.box_from=val", "autoencoder.box_from='val': use one of train, all"),
+    ("method.start=random", "method.start='random': use one of dc, uncertain"),
+    ("method.candidates=0", "method.candidates=0: must be an integer >= 1"),
+    ("detector.targets.pd_floor=0.5", "detector.targets.pd_floor=0.5: must be < 0"),
+    ("+autoencoder.level1.code_noise=-0.1", "autoencoder.level1.code_noise=-0.1: must be >= 0"),
 ])
 def test_bad_settings_are_named(override, key):
     problems = config_problems(_compose([override]))

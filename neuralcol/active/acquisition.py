@@ -25,11 +25,11 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from neuralcol.active.newton import newton_project
+from neuralcol.active.newton import Projection, newton_project
 from neuralcol.active.oracle import LatentOracle
 from neuralcol.data.collision_store import ORIGIN_PROJECTED, ORIGIN_UNIFORM, CollisionStore
 from neuralcol.data.uniform_samples import uniform_rows
-from neuralcol.metrics.projection import projection_quality
+from neuralcol.metrics.projection import boundary_shares, projection_quality
 
 
 class Acquired(NamedTuple):
@@ -103,29 +103,65 @@ class ProjectedAcquisition(UniformAcquisition):
         box_lo, box_hi: (D,) the box Z (projected codes stay inside).
         projected_fraction: share of projected samples (paper: 1/2).
         newton: keyword arguments of :func:`~neuralcol.active.newton.newton_project`.
+        start: where the projected half starts: ``"dc"`` (rows drawn from D_c, the paper's Algorithm 1) or
+            ``"uncertain"`` (of ``candidates`` x n fresh codes from U(Z), the n whose detector logit is closest
+            to 0, i.e. probability closest to 0.5: pool-based uncertainty sampling; docs/diagnosis.md).
+        candidates: candidate codes per selected code with ``start="uncertain"``.
+        project: run the Newton projector from the starting codes (paper); False labels them as they are.
     """
 
+    STARTS = ("dc", "uncertain")
+
     def __init__(self, pool_path, oracle: LatentOracle, seed: int, box_lo: torch.Tensor, box_hi: torch.Tensor,
-                 projected_fraction: float = 0.5, newton: dict | None = None):
+                 projected_fraction: float = 0.5, newton: dict | None = None, start: str = "dc",
+                 candidates: int = 10, project: bool = True):
         super().__init__(pool_path, oracle, seed)
         if not 0.0 <= projected_fraction <= 1.0:
             raise ValueError(f"projected_fraction={projected_fraction} must be in [0, 1]")
+        if start not in self.STARTS:
+            raise ValueError(f"start={start!r}; use one of {self.STARTS}")
+        if int(candidates) < 1:
+            raise ValueError(f"candidates={candidates} must be >= 1")
         self.box_lo, self.box_hi = box_lo.detach().cpu().float(), box_hi.detach().cpu().float()
         self.projected_fraction = float(projected_fraction)
         self.newton = dict(newton or {})
+        self.start, self.candidates, self.project_codes = start, int(candidates), bool(project)
+
+    def _uncertain_codes(self, round_: int, net: torch.nn.Module, n: int) -> torch.Tensor:
+        """The n of ``candidates * n`` fresh U(Z) codes (seeded by seed and round) with the smallest |logit|."""
+        state = np.random.SeedSequence([self.seed, round_, 7]).generate_state(2, dtype=np.uint32)
+        gen = torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
+        u = torch.rand(self.candidates * n, len(self.box_lo), generator=gen)
+        cand = self.box_lo + u * (self.box_hi - self.box_lo)
+        dev = next(net.parameters()).device
+        was_training = net.training
+        net.eval()
+        with torch.no_grad():
+            logit = torch.cat([net(c.to(dev)).logit.cpu() for c in cand.split(65536)])
+        net.train(was_training)
+        pick = torch.argsort(logit.abs(), stable=True)[:n]
+        return cand[pick]
 
     def project(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> Acquired:
         t0 = time.perf_counter()
-        gen = np.random.default_rng([self.seed, round_])
-        n = min(n, len(store))
-        pick = np.sort(gen.choice(len(store), size=n, replace=False))
-        start = store.read(pick)
-        z0 = torch.as_tensor(start.z)
+        if self.start == "dc":
+            gen = np.random.default_rng([self.seed, round_])
+            n = min(n, len(store))
+            pick = np.sort(gen.choice(len(store), size=n, replace=False))
+            start = store.read(pick)
+            z0, pd_start = torch.as_tensor(start.z), start.pd
+        else:
+            z0, pd_start = self._uncertain_codes(round_, net, n), None
         dev = next(net.parameters()).device
         # in float64: eps_z = 1e-7 (paper) is below float32's resolution, so float32 iterates never settle
         net64 = copy.deepcopy(net).double().eval()
         lo, hi = self.box_lo.to(dev, torch.float64), self.box_hi.to(dev, torch.float64)
-        proj = newton_project(lambda z: net64(z).logit, z0.to(dev, torch.float64), lo, hi, **self.newton)
+        if self.project_codes:
+            proj = newton_project(lambda z: net64(z).logit, z0.to(dev, torch.float64), lo, hi, **self.newton)
+        else:
+            ones = torch.ones(len(z0), dtype=torch.bool, device=dev)
+            zero = torch.zeros(len(z0), dtype=torch.long, device=dev)
+            proj = Projection(z0.to(dev, torch.float64), zero, ones, ones)
         z = proj.z[proj.finite].float().cpu()
         t_proj = time.perf_counter() - t0
         lab = self.oracle(z, desc="labeling projected samples")
@@ -135,7 +171,8 @@ class ProjectedAcquisition(UniformAcquisition):
             kept = kept[np.asarray(lab.ok, bool)]
         lab = lab.without_failures()  # never written to D_c; the uniform rows make up for them
         z = torch.as_tensor(lab.z)
-        quality = projection_quality(start.z[kept], lab.z, lab.pd, start.pd[kept], float(self.oracle.pool.labeler.eps),
+        quality = projection_quality(z0.numpy()[kept], lab.z, lab.pd, None if pd_start is None else pd_start[kept],
+                                     float(self.oracle.pool.labeler.eps),
                                      self.box_lo.numpy(), self.box_hi.numpy(), self.oracle.space.n_parts)
         with torch.no_grad():
             p = torch.sigmoid(net64(z.to(dev, torch.float64)).logit).cpu().numpy() if len(z) else np.zeros(0)
@@ -156,4 +193,7 @@ class ProjectedAcquisition(UniformAcquisition):
         # failed projections (non-finite) and projected samples that failed to label are replaced by uniform
         # samples, so D_c grows by exactly n
         uniform = self.take(n - len(projected.z))
+        if "projection" in projected.info:  # the same shares for this round's uniform samples, for comparison
+            eps = float(self.oracle.pool.labeler.eps)
+            projected.info["projection"]["uniform"] = boundary_shares(uniform.pd, eps)
         return _concat([projected, uniform])

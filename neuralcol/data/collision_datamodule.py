@@ -25,16 +25,17 @@ from neuralcol.data.collision_store import CollisionRows, CollisionStore
 
 
 def detector_targets(rows: CollisionRows, pd_unit: float, pd_clip: float,
-                     use_boundary_set: bool = True, pd_floor: float = -1.0) -> tuple[torch.Tensor, ...]:
+                     use_boundary_set: bool = True, pd_floor: float | None = None) -> tuple[torch.Tensor, ...]:
     """Rows -> (z (B, D) float32, pd (B,), pd_sub (B, K), subset (B,) long) tensors (see the module doc).
 
-    ``pd_floor < 0 < pd_clip`` bound the scaled PD targets; free depths are already >= -1 (the cap), so
-    ``pd_floor = -1`` keeps them whole. A narrow band (e.g. +-0.25) keeps the regression terms about the
+    ``pd_floor < 0 < pd_clip`` bound the scaled PD targets (``pd_floor=None``: no lower bound; the labeler's
+    free depths are >= -1, the cap, anyway). A narrow band (e.g. +-0.25) keeps the regression terms about the
     boundary, where the sign is decided (docs/diagnosis.md, cause 5)."""
-    if pd_unit <= 0 or pd_clip <= 0 or pd_floor >= 0:
+    if pd_unit <= 0 or pd_clip <= 0 or (pd_floor is not None and pd_floor >= 0):
         raise ValueError(f"pd_unit={pd_unit} and pd_clip={pd_clip} must be > 0 and pd_floor={pd_floor} < 0")
-    pd = np.clip(np.asarray(rows.pd, np.float64) / pd_unit, pd_floor, pd_clip)
-    pd_sub = np.clip(np.asarray(rows.pd_sub, np.float64) / pd_unit, pd_floor, pd_clip)
+    low = -np.inf if pd_floor is None else float(pd_floor)
+    pd = np.clip(np.asarray(rows.pd, np.float64) / pd_unit, low, pd_clip)
+    pd_sub = np.clip(np.asarray(rows.pd_sub, np.float64) / pd_unit, low, pd_clip)
     subset = np.asarray(rows.subset, np.int64)
     if not use_boundary_set:
         subset = np.where(np.asarray(rows.collides, bool), SUBSET_POSITIVE, SUBSET_NEGATIVE)
@@ -67,14 +68,14 @@ class CollisionDataModule(L.LightningDataModule):
         batch_size: training batch size (may be changed between epochs, e.g. 512 -> 1024 when fine-tuning).
         pd_unit: length that PD targets are divided by (> 0).
         pd_clip: upper clip of the scaled PD targets.
-        pd_floor: lower clip of the scaled PD targets (< 0; -1 keeps every free depth).
+        pd_floor: lower clip of the scaled PD targets (< 0), or None for none.
         use_boundary_set: keep D_b (``supv_bd``, ``active``) or fold it into D_p (``supv``).
         seed: shuffling seed (the order of epoch e depends on ``(seed, e)`` only, so resumed runs replay it).
     """
 
     def __init__(self, path: str | os.PathLike, latent_dim: int, n_parts: int, batch_size: int, pd_unit: float,
                  pd_clip: float, use_boundary_set: bool = True, seed: int = 0, val_batch_size: int = 8192,
-                 pd_floor: float = -1.0):
+                 pd_floor: float | None = None):
         super().__init__()
         if batch_size < 1:
             raise ValueError(f"batch_size={batch_size} must be >= 1")
@@ -83,7 +84,7 @@ class CollisionDataModule(L.LightningDataModule):
         self.val_batch_size = int(val_batch_size)
         self.pd_unit = float(pd_unit)
         self.pd_clip = float(pd_clip)
-        self.pd_floor = float(pd_floor)
+        self.pd_floor = None if pd_floor is None else float(pd_floor)
         self.use_boundary_set = bool(use_boundary_set)
         self.seed = int(seed)
         self._train: tuple[torch.Tensor, ...] | None = None

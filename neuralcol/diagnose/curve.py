@@ -31,7 +31,7 @@ def take_rows(rows: CollisionRows, n: int) -> CollisionRows:
 
 
 def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, loss: dict, w_b: float,
-                 use_boundary_set: bool, pd_clip: float, pd_floor: float, epochs: int, lr: float,
+                 use_boundary_set: bool, pd_clip: float, pd_floor: float | None, epochs: int, lr: float,
                  batch_size: int, seed: int) -> dict:
     """Train ``net`` on ``rows`` (80/20 by row position, as D_c) and keep the best-validation epoch.
 
@@ -52,6 +52,7 @@ def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, lo
     val = torch.as_tensor(np.arange(len(z)) % VAL_EVERY == VAL_EVERY - 1)
     tr = torch.nonzero(~val).flatten()
     kw = {k: float(loss[k]) for k in ("w_pd", "w_pdsum", "w_r", "w_ce", "margin", "temperature")}
+    kw["ce_on_boundary"] = bool(loss.get("ce_on_boundary", False))
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     gen = torch.Generator().manual_seed(int(seed))
     best = (-1.0, -1, None, float("nan"))
@@ -156,7 +157,7 @@ def learning_curve(rows: CollisionRows, test: CollisionRows, sizes: Sequence[int
                 net = build(net_cfg)
                 fit = fit_detector(net, sub, pd_unit, loss, float(over.get("w_b", 0.0)),
                                    bool(over.get("use_boundary_set", False)), float(targets["pd_clip"]),
-                                   float(targets.get("pd_floor", -1.0)), int(det["epochs"]), float(det["lr"]),
+                                   targets.get("pd_floor"), int(det["epochs"]), float(det["lr"]),
                                    int(det["batch_size"]), int(seed))
                 rec = {"size": int(n), "model": var["name"], "seed": int(seed), **fit, "test": test_metrics(net, test),
                        "n_parameters": int(sum(p.numel() for p in net.parameters()))}

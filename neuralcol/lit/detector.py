@@ -17,16 +17,17 @@ class DetectorLitModule(L.LightningModule):
         w_pd, w_pdsum, w_r, w_ce, w_b: loss weights (paper: 5, 0.2, 2, 2, 0.5; ``supv`` uses w_b = 0).
         margin: ranking margin alpha (in PD target units).
         temperature: smooth-max temperature of the aggregated depth (PD target units).
+        ce_on_boundary: cross-entropy on the D_b rows too (see :func:`~neuralcol.nn.detector.detector_losses`).
     """
 
     def __init__(self, net: CollisionDetector, lr: float, w_pd: float, w_pdsum: float, w_r: float, w_ce: float,
-                 w_b: float, margin: float, temperature: float):
+                 w_b: float, margin: float, temperature: float, ce_on_boundary: bool = False):
         super().__init__()
         self.save_hyperparameters(ignore=["net"])
         self.net = net
         self.lr = float(lr)
         self.loss_kwargs = dict(w_pd=w_pd, w_pdsum=w_pdsum, w_r=w_r, w_ce=w_ce, w_b=w_b, margin=margin,
-                                temperature=temperature)
+                                temperature=temperature, ce_on_boundary=bool(ce_on_boundary))
 
     def forward(self, z: torch.Tensor):
         return self.net(z)

@@ -44,7 +44,8 @@ def projection_quality(z0: np.ndarray, z: np.ndarray, pd: np.ndarray, pd_start: 
 
     Returns:
         ``n``; ``within_eps``, ``within_2eps``, ``colliding`` (projected samples); the same for the starting
-        codes under ``start``; ``on_face_level1`` / ``on_face_level2`` (share of coordinates on a box face,
+        codes under ``start`` (when their PD is known); the acquisition adds them for the round's uniform samples
+        under ``uniform``; ``on_face_level1`` / ``on_face_level2`` (share of coordinates on a box face,
         within 1e-6 of the side); ``moved_level1`` / ``moved_level2`` (mean |z - z0| in units of each axis'
         half-range); ``moved_ratio`` (level 1 over level 2: ~1 when both levels move alike).
     """

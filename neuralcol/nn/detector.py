@@ -140,7 +140,7 @@ class DetectorLosses(NamedTuple):
 
 def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor, subset: torch.Tensor,
                     w_pd: float, w_pdsum: float, w_r: float, w_ce: float, w_b: float, margin: float,
-                    temperature: float) -> DetectorLosses:
+                    temperature: float, ce_on_boundary: bool = False) -> DetectorLosses:
     """``L = w_PD L_PD + w_r L_r + w_ce L_ce + w_b L_b`` (paper sec. 4.3) on one batch.
 
     - ``L_PD = mean_B [ sum_i (S_i - PD_i)^2 + w_PDsum (smax(S) - PD)^2 ]``: PD_i are the labeler's
@@ -148,7 +148,9 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
       (``temperature``) instead of the paper's sum.
     - ``L_r = mean over ordered pairs (a, b) of the batch with PD_a < PD_b of max(0, margin - (smax(S_b) -
       smax(S_a)))``: the predicted depths keep the order of the true ones by at least ``margin``.
-    - ``L_ce``: binary cross-entropy of the collision probability on D_p and D_n (subset 0 and 1).
+    - ``L_ce``: binary cross-entropy of the collision probability on D_p and D_n (subset 0 and 1); with
+      ``ce_on_boundary`` on every row, D_b included (their label, ``PD > 0``, is known: without it the shallow
+      collisions of D_b are only pulled to p = 0.5 by L_b, and the detector under-calls collisions).
     - ``L_b = mean over D_b (subset 2) of |p - 0.5|`` (paper eq. 3).
 
     Args:
@@ -159,6 +161,7 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
         w_pd, w_pdsum, w_r, w_ce, w_b: weights (paper: 5, 0.2, 2, 2, 0.5).
         margin: ranking margin alpha.
         temperature: smooth-max temperature.
+        ce_on_boundary: cross-entropy on D_b rows too (not in the paper; docs/diagnosis.md, cause 4).
 
     Returns:
         DetectorLosses; terms without samples (e.g. no D_b in the batch) are 0.
@@ -171,9 +174,10 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
         l_r = F.relu(margin - gap)[less].mean()
     else:
         l_r = agg.new_zeros(())
-    label_mask = subset != 2
+    label_mask = torch.ones_like(subset, dtype=torch.bool) if ce_on_boundary else subset != 2
     if label_mask.any():
-        target = (subset[label_mask] == 0).to(out.logit.dtype)
+        target = (pd[label_mask] > 0).to(out.logit.dtype) if ce_on_boundary else \
+            (subset[label_mask] == 0).to(out.logit.dtype)
         l_ce = F.binary_cross_entropy_with_logits(out.logit[label_mask], target)
     else:
         l_ce = agg.new_zeros(())

@@ -135,11 +135,14 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     pd_unit = float(labeler.cap)
     dm = CollisionDataModule(run_dir / "dc.h5", space.dim, space.n_parts, int(det["batch_size"]), pd_unit,
                              float(det["targets"]["pd_clip"]), use_boundary_set=bool(method["use_boundary_set"]),
-                             seed=seed, pd_floor=float(det["targets"].get("pd_floor", -1.0)))
+                             seed=seed, pd_floor=det["targets"].get("pd_floor"))
     pool_path = shared / f"uniform_s{seed}.h5"
     if method["acquisition"] == "projected":
         acquire = ProjectedAcquisition(pool_path, oracle, seed, space.box_lo, space.box_hi,
-                                       float(method["projected_fraction"]), det["newton"])
+                                       float(method["projected_fraction"]), det["newton"],
+                                       start=str(method.get("start", "dc")),
+                                       candidates=int(method.get("candidates", 10)),
+                                       project=bool(method.get("project", True)))
     elif method["acquisition"] == "uniform":
         acquire = UniformAcquisition(pool_path, oracle, seed)
     else:
@@ -182,7 +185,8 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     l_cfg = det["loss"]
     module = DetectorLitModule(net, lr=sched["bootstrap"].lr, w_pd=l_cfg["w_pd"], w_pdsum=l_cfg["w_pdsum"],
                                w_r=l_cfg["w_r"], w_ce=l_cfg["w_ce"], w_b=float(method["w_b"]),
-                               margin=l_cfg["margin"], temperature=l_cfg["temperature"])
+                               margin=l_cfg["margin"], temperature=l_cfg["temperature"],
+                               ce_on_boundary=bool(l_cfg.get("ce_on_boundary", False)))
     if not resuming:  # bootstrap: N_init uniform samples (round 0)
         boot = acquire.take(int(det["n_init"]))
         dm.append(boot.z, boot.pd, boot.pd_sub, boot.collides, boot.subset, 0, boot.origin)

@@ -49,6 +49,19 @@ def config_problems(cfg: DictConfig) -> list[str]:
         need(key, lambda v: float(v) > 0, "must be > 0")
     need("labeling.labeler.touch_tol", lambda v: float(v) >= 0, "must be >= 0")
     need("method.projected_fraction", lambda v: 0 <= float(v) <= 1, "must lie in [0, 1]")
+    choices = {"detector.newton.coordinates": ("box", "raw"), "autoencoder.box_from": ("train", "all"),
+               "autoencoder.level1.activation": ("tanh", "linear"), "method.start": ("dc", "uncertain")}
+    for key, allowed in choices.items():
+        if _get(cfg, key) is not None:
+            need(key, lambda v, allowed=allowed: v in allowed, f"use one of {', '.join(allowed)}")
+    if _get(cfg, "method.candidates") is not None:
+        need("method.candidates", lambda v: is_int(v) and v >= 1, "must be an integer >= 1")
+    if _get(cfg, "detector.targets.pd_floor") is not None:
+        need("detector.targets.pd_floor", lambda v: float(v) < 0, "must be < 0 (or null: no lower clip)")
+    for key in ("autoencoder.level1.code_noise", "autoencoder.level2.code_noise", "method.update.min_steps",
+                "method.bootstrap.min_steps"):
+        if _get(cfg, key) is not None:
+            need(key, lambda v: float(v) >= 0, "must be >= 0")
     need("labeling.pool.workers", lambda v: is_int(v) and v >= 0, "must be an integer >= 0 (0 or 1: in-process)")
     if _get(cfg, "labeling.pool.timeout") is not None:
         need("labeling.pool.timeout", lambda v: float(v) > 0, "must be > 0 seconds, or null for no limit")
