@@ -15,6 +15,9 @@ or any mix), groups the runs by data set and method (seeds are pooled: mean ± s
   detection time per sample (from ``bench/results.json`` when present);
 * ``stability.png``: the spread of accuracy across seeds per method and size, and handling success vs size
   per seed (is it monotone?);
+* ``projection.png`` and a table in ``report.md`` (active runs): where the projected samples of each round
+  landed: share within eps and 2 eps of the true boundary, next to the round's uniform samples, and how far
+  each latent level moved (docs/diagnosis.md);
 * ``report.json``: the aggregated numbers.
 """
 
@@ -33,8 +36,9 @@ from neuralcol.errors import UserInputError
 from neuralcol.utils.cli import report_user_errors
 
 ROOT = Path(__file__).resolve().parents[1]
-METHOD_ORDER = ("supv", "supv_bd", "active")
-LABELS = {"supv": "Supv", "supv_bd": "Supv+bd", "active": "Active+bd (ours)"}
+METHOD_ORDER = ("supv", "supv_bd", "active_paper", "active")
+LABELS = {"supv": "Supv", "supv_bd": "Supv+bd", "active_paper": "Active+bd (paper's text)",
+          "active": "Active+bd (ours)"}
 HANDLING_KEYS = (("success_rate", "success"), ("resolved_rate", "resolved"), ("mean_pd_reduction", "PD reduction"),
                  ("mean_embedding_diff", "‖Z − Z_user‖"), ("seconds_per_mesh", "ms / mesh"))
 
@@ -240,6 +244,7 @@ def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) 
         lines += [handling_markdown([r for r in runs if r["dataset"]["name"] == ds])]
         lines += speed_markdown(ds, [r for r in runs if r["dataset"]["name"] == ds], agg)
         lines += stability_markdown(ds, agg)
+        lines += projection_markdown([r for r in runs if r["dataset"]["name"] == ds])
     if bench:
         lines += ["## Detection time per sample (bench/results.json)", "",
                   f"Neural detector {bench['detector_us_per_sample_b4096']:.1f} µs at batch 4096 and "
@@ -247,6 +252,48 @@ def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) 
                   f"{bench['exact_ms_per_sample']:.1f} ms: {bench['neural_vs_exact_speedup']:.0f}× "
                   f"(measured {bench.get('date', '?')}).", ""]
     return "\n".join(lines)
+
+
+def projection_runs(runs: list[dict]) -> dict:
+    """``{run dir: [round record with the projection statistics, ...]}`` of the runs that projected samples."""
+    out = {}
+    for run in runs:
+        rs = [{"round": r["round"], "dataset_size": r["dataset_size"], **r["projection"]}
+              for r in run["rounds"] if r.get("projection")]
+        if rs:
+            out[run["_path"]] = rs
+    return out
+
+
+def projection_markdown(runs: list[dict]) -> list[str]:
+    """Per data set, the projection statistics per round (mean over the active runs)."""
+    lines = []
+    for ds in sorted({r["dataset"]["name"] for r in runs}):
+        proj = projection_runs([r for r in runs if r["dataset"]["name"] == ds])
+        if not proj:
+            continue
+        by_size: dict = defaultdict(list)
+        for rs in proj.values():
+            for r in rs:
+                by_size[r["dataset_size"]].append(r)
+        lines += [f"### {ds}: where the projected samples landed (mean over {len(proj)} active runs)", "",
+                  "| \\|D_c\\| of the projecting detector | within eps | within 2 eps | uniform samples within 2 eps "
+                  "| colliding | moved level 1 / level 2 (half-ranges) | on a box face (level 1 / 2) |",
+                  "|---:|---:|---:|---:|---:|---:|---:|"]
+        for size in sorted(by_size):
+            rs = by_size[size]
+
+            def m(key, rs=rs):
+                vals = [r[key] for r in rs if r.get(key) is not None]
+                return float(np.mean(vals)) if vals else float("nan")
+
+            uni = [r["uniform"]["within_2eps"] for r in rs if r.get("uniform")]
+            lines.append(f"| {size} | {m('within_eps'):.3f} | {m('within_2eps'):.3f} | "
+                         f"{np.mean(uni) if uni else float('nan'):.3f} | {m('colliding'):.3f} | "
+                         f"{m('moved_level1'):.3f} / {m('moved_level2'):.3f} | "
+                         f"{m('on_face_level1'):.3f} / {m('on_face_level2'):.3f} |")
+        lines.append("")
+    return lines
 
 
 def handling_markdown(runs: list[dict]) -> str:
@@ -472,6 +519,13 @@ def main(argv: list[str] | None = None) -> None:
     plot_speed(agg, bench, out / "speed.png")
     plot_stability(agg, runs, out / "stability.png")
     charts += ["speed.png", "stability.png"]
+    proj = projection_runs(runs)
+    if proj:
+        from experiments.diagnose import plot as plot_diagnosis
+
+        names = sorted({r["dataset"]["name"] for r in runs})
+        plot_diagnosis({"projection": proj}, out, f"{', '.join(names)}: projected samples per round")
+        charts.append("projection.png")
     print(text)
     print(f"{len(runs)} runs; wrote {out / 'report.md'}, table3.csv, report.json, {', '.join(charts)}",
           file=sys.stderr)

@@ -156,3 +156,21 @@ def test_code_noise_only_while_training():
     assert 0.1 < float(ratio) < 0.6, "noise ~ code_noise x the batch std of each code"
     plain = AutoencoderLitModule(net, 1, optimizer=lambda params: torch.optim.Adam(params))
     assert torch.equal(plain._noisy(z, "train"), z)
+
+
+def test_cache_key_ignores_settings_spelled_out_at_their_neutral_value(tube_dataset):
+    """Adding `activation: tanh` / `code_noise: 0` to a config keeps the cached latent space's key; other
+    values change it."""
+    from neuralcol.stages.autoencoder import autoencoder_cache_key
+
+    base = {"level1": {"epochs": 3, "lr": 0.01}, "level2": {"epochs": 3}, "box_from": "train"}
+    spelled = {"level1": {"epochs": 3, "lr": 0.01, "activation": "tanh", "code_noise": 0.0},
+               "level2": {"epochs": 3, "code_noise": 0.0}, "box_from": "train"}
+    key = lambda cfg: autoencoder_cache_key(tube_dataset, 0, {}, cfg, {"n_components": 2}, 0)  # noqa: E731
+    assert key(base) == key(spelled)
+    assert spelled["level1"]["activation"] == "tanh", "the caller's config is not modified"
+    for group, name, value in (("level1", "activation", "linear"), ("level1", "code_noise", 0.1),
+                               ("level2", "code_noise", 0.1)):
+        changed = {k: dict(v) if isinstance(v, dict) else v for k, v in spelled.items()}
+        changed[group][name] = value
+        assert key(changed) != key(base), (group, name)

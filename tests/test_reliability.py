@@ -107,8 +107,9 @@ def test_killed_three_times_then_resumed_equals_the_uninterrupted_run(reference,
     rounds = json.loads((run_dir / "detector_rounds.json").read_text())["rounds"]
     assert [r["round"] for r in rounds] == [0, 1], "died after round 1, while acquiring round 2's samples"
 
-    # 3. again: resumes, finishes the acquisition, is killed in the middle of round 2's fine-tuning
-    proc = _run(data, out, cache, fault="train_epoch:3")
+    # 3. again: resumes from round 0's checkpoint, retrains round 1 (4 epochs: detector=tiny, method=active
+    #    retrains each round), finishes the acquisition, is killed in the middle of round 2's training
+    proc = _run(data, out, cache, fault="train_epoch:6")
     assert proc.returncode == -signal.SIGKILL, proc.stderr[-2000:]
     assert len(_dc(run_dir)["id"]) == n_init + 2 * n_aug
 

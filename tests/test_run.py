@@ -104,7 +104,7 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     proc = subprocess.run(
         [sys.executable, "-m", "experiments.run", "-m", "dataset=scape", "autoencoder=tiny", "detector=tiny",
          "method=supv_bd,active", "seed=0,1", "hydra/launcher=parallel", "handler.n_inputs=8",
-         "handler.eval_every_round=true", "handler.verify_margins=[2.0]", "n_example_meshes=0",
+         "handler.eval_every_round=true", "handler.verify_margins=[4.0]", "n_example_meshes=0",
          "labeling.pool.workers=0", "labeling.pool.progress=false", f"paths.data_dir={scape_dir.parent}",
          f"paths.cache_dir={tmp_path}/cache",
          f"hydra.sweep.dir={sweep}"],
@@ -124,5 +124,6 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     assert "Table 3 layout" in text and "equivalent supv_bd size" in text and "detector parameters" in text
     rows = list(__import__("csv").DictReader(open(sweep / "table3.csv")))
     assert [r["method"] for r in rows] == ["supv_bd", "active"] and rows[0]["n_seeds"] == "2"
-    for chart in ("accuracy.png", "fnr.png", "handling.png", "speed.png", "stability.png"):
+    for chart in ("accuracy.png", "fnr.png", "handling.png", "speed.png", "stability.png", "projection.png"):
         assert (sweep / chart).stat().st_size > 10_000, chart
+    assert "where the projected samples landed (mean over 2 active runs)" in text

@@ -121,8 +121,23 @@ def connect_partition(partition: np.ndarray, edges: np.ndarray, k: int, max_roun
     return part
 
 
+# settings added after caches existed: at these values they leave the key as it was (an unchanged model keeps
+# its cached space when a config spells the default out)
+KEY_NEUTRAL = {("level1", "activation"): "tanh", ("level1", "code_noise"): 0.0, ("level2", "code_noise"): 0.0}
+
+
+def _key_config(ae_cfg: dict) -> dict:
+    out = {k: dict(v) if isinstance(v, dict) else v for k, v in ae_cfg.items()}
+    for (group, name), neutral in KEY_NEUTRAL.items():
+        if isinstance(out.get(group), dict) and name in out[group] and out[group][name] == neutral:
+            del out[group][name]
+    return out
+
+
 def autoencoder_cache_key(ds: MeshDataset, reference_index: int, acap_kwargs: dict, ae_cfg: dict,
                           latent_cfg: dict, seed: int) -> str:
+    """Hash of everything the trained latent space depends on (meshes, ACAP settings, config, seed)."""
+    ae_cfg = _key_config(ae_cfg)
     h = hashlib.sha1()
     h.update(ds.vertices.detach().cpu().numpy().tobytes())
     h.update(ds.faces.cpu().numpy().tobytes())

@@ -10,7 +10,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from neuralcol.errors import UserInputError
 
-METHODS = ("supv", "supv_bd", "active")
+METHODS = ("supv", "supv_bd", "active", "active_paper")
 
 
 def _get(cfg, key: str):
@@ -40,7 +40,7 @@ def config_problems(cfg: DictConfig) -> list[str]:
         need(key, lambda v: is_int(v) and v >= 1, "must be an integer >= 1")
     for key in ("detector.max_rounds", "handler.n_inputs", "seed", "autoencoder_seed"):
         need(key, lambda v: is_int(v) and v >= 0, "must be an integer >= 0")
-    if _get(cfg, "method.name") == "active" and _get(cfg, "method.projected_fraction") == 0.5:
+    if _get(cfg, "method.name") in ("active", "active_paper") and _get(cfg, "method.projected_fraction") == 0.5:
         need("detector.n_aug", lambda v: v % 2 == 0, "must be even for method=active (half of each round's "
              "samples are projected, half uniform)")
     for key in ("detector.lr", "detector.finetune_lr", "detector.newton.eps_z", "detector.newton.max_step",
