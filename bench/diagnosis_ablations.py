@@ -34,7 +34,7 @@ from omegaconf import OmegaConf
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _cfg(dataset: str, extra: list[str], config: str = "config"):
+def _cfg(dataset: str, extra: list[str], config: str = "diagnose"):
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         return compose(config, overrides=[f"dataset={dataset}", "autoencoder.progress_bar=false",
                                           "labeling.pool.progress=false", *extra])
@@ -141,9 +141,9 @@ def cmd_regression(args) -> dict:
 LATENT_VARIANTS = {
     "tanh, box from all codes (before)": ["autoencoder.box_from=all"],
     "tanh, box from training codes (default)": [],
-    "latent noise 0.1": ["+autoencoder.level1.code_noise=0.1", "+autoencoder.level2.code_noise=0.1"],
-    "latent noise 0.3": ["+autoencoder.level1.code_noise=0.3", "+autoencoder.level2.code_noise=0.3"],
-    "linear level-1 components": ["+autoencoder.level1.activation=linear"],
+    "latent noise 0.1": ["autoencoder.level1.code_noise=0.1", "autoencoder.level2.code_noise=0.1"],
+    "latent noise 0.3": ["autoencoder.level1.code_noise=0.3", "autoencoder.level2.code_noise=0.3"],
+    "linear level-1 components": ["autoencoder.level1.activation=linear"],
 }
 
 

@@ -55,7 +55,7 @@ def _space(cfg: DictConfig):
     from neuralcol.stages.autoencoder import train_or_load_latent_space
 
     ds = instantiate(cfg.dataset.source)
-    if cfg.diagnose.get("latent_space"):
+    if OmegaConf.select(cfg, "diagnose.latent_space", default=None):
         path = Path(str(cfg.diagnose.latent_space))
         if not path.is_file():
             raise UserInputError(f"diagnose.latent_space={path}: no such file; give a latent_space.pt of "

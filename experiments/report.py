@@ -276,7 +276,10 @@ def projection_markdown(runs: list[dict]) -> list[str]:
         for rs in proj.values():
             for r in rs:
                 by_size[r["dataset_size"]].append(r)
-        lines += [f"### {ds}: where the projected samples landed (mean over {len(proj)} active runs)", "",
+        lines += [f"### {ds}: where the acquired samples landed (mean over {len(proj)} active runs)", "",
+                  "The non-uniform half of each round: codes projected onto the detector's 0.5 level set "
+                  "(`method.project: true`, `active_paper`) or the most uncertain candidates as drawn "
+                  "(`project: false`, `active`'s default: they do not move). eps: the labeler's `boundary_eps`.", "",
                   "| \\|D_c\\| of the projecting detector | within eps | within 2 eps | uniform samples within 2 eps "
                   "| colliding | moved level 1 / level 2 (half-ranges) | on a box face (level 1 / 2) |",
                   "|---:|---:|---:|---:|---:|---:|---:|"]

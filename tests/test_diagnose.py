@@ -242,3 +242,13 @@ def test_uncertain_start_selects_the_codes_nearest_the_level_set(tmp_path):
     np.testing.assert_array_equal(acquire("c", False).z[:50], drawn.z[:50])
     assert not np.array_equal(acquire("d", False, round_=2).z[:50], drawn.z[:50])
     store.close()
+
+
+def test_ablation_bench_configs_compose():
+    """Every variant of `python -m bench.diagnosis_ablations` composes against conf/ (keys exist, no `+` needed)."""
+    from bench.diagnosis_ablations import LATENT_VARIANTS, _cfg
+
+    for name, overrides in LATENT_VARIANTS.items():
+        cfg = _cfg("proc_hand", list(overrides))
+        assert "diagnose" in cfg and cfg.autoencoder.level1.activation in ("tanh", "linear"), name
+    assert _cfg("proc_hand", ["autoencoder.level1.code_noise=0.3"]).autoencoder.level1.code_noise == 0.3

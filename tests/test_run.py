@@ -126,4 +126,4 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     assert [r["method"] for r in rows] == ["supv_bd", "active"] and rows[0]["n_seeds"] == "2"
     for chart in ("accuracy.png", "fnr.png", "handling.png", "speed.png", "stability.png", "projection.png"):
         assert (sweep / chart).stat().st_size > 10_000, chart
-    assert "where the projected samples landed (mean over 2 active runs)" in text
+    assert "where the acquired samples landed (mean over 2 active runs)" in text
