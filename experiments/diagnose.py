@@ -170,6 +170,14 @@ def plot(results: dict, out: Path, title: str) -> list[Path]:
     import matplotlib.pyplot as plt
 
     paths = []
+
+    def save(fig, name: str) -> None:
+        fig.suptitle(title)
+        fig.tight_layout()
+        paths.append(out / name)
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+
     if "latent" in results:
         lat = results["latent"]
         fig, ax = plt.subplots(1, 3, figsize=(15, 4))
@@ -190,11 +198,7 @@ def plot(results: dict, out: Path, title: str) -> list[Path]:
         ax[2].set(xscale="log", xlabel="shift of every normalised coordinate", ylabel="label flip rate",
                   title="label roughness")
         ax[2].grid(alpha=0.3)
-        fig.suptitle(title)
-        fig.tight_layout()
-        paths.append(out / "latent.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
+        save(fig, "latent.png")
     if "curve" in results:
         cur = results["curve"]
         fig, ax = plt.subplots(1, 2, figsize=(13, 4.5))
@@ -220,16 +224,12 @@ def plot(results: dict, out: Path, title: str) -> list[Path]:
         ax[1].legend(fontsize=7)
         for a in ax:
             a.grid(alpha=0.3)
-        fig.suptitle(title)
-        fig.tight_layout()
-        paths.append(out / "curve.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
+        save(fig, "curve.png")
     if results.get("projection"):
         fig, ax = plt.subplots(1, 3, figsize=(15, 4))
         for i, (run, rs) in enumerate(results["projection"].items()):
             x = [r["dataset_size"] for r in rs]
-            name = Path(run).name if Path(run).name.isdigit() is False else "/".join(Path(run).parts[-2:])
+            name = "/".join(Path(run).parts[-2:]) if Path(run).name.isdigit() else Path(run).name
             ax[0].plot(x, [r["within_2eps"] for r in rs], "o-", color=f"C{i}", label=f"{name}: 2 eps")
             ax[0].plot(x, [r["within_eps"] for r in rs], "s--", color=f"C{i}", alpha=0.6, label=f"{name}: eps")
             if rs[0].get("start"):
@@ -247,11 +247,7 @@ def plot(results: dict, out: Path, title: str) -> list[Path]:
         for a in ax:
             a.grid(alpha=0.3)
             a.legend(fontsize=7)
-        fig.suptitle(title)
-        fig.tight_layout()
-        paths.append(out / "projection.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
+        save(fig, "projection.png")
     return paths
 
 
