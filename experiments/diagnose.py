@@ -40,6 +40,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from neuralcol.collision.backends import build_labeler
 from neuralcol.errors import UserInputError
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.config import as_dict
@@ -263,7 +264,7 @@ def run(cfg: DictConfig, out_dir: Path) -> dict:
 
         ds, space, report = _space(cfg)
         results["latent_space"] = {"cache_key": report["cache_key"], "dim": space.dim, "n_parts": space.n_parts}
-        labeler = instantiate(cfg.labeling.labeler)(ds.faces.numpy(), space.rest_vertices.numpy(),
+        labeler = build_labeler(cfg.labeling, ds.faces.numpy(), space.rest_vertices.numpy(),
                                                     partition=space.partition.numpy())
         with LabelPool(labeler, **OmegaConf.to_container(cfg.labeling.pool)) as pool:
             oracle = LatentOracle(space, pool)

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
+from neuralcol.collision.backends import build_labeler
 from neuralcol.errors import UserInputError
 from neuralcol.geometry.mesh_io import MESH_SUFFIXES, read_mesh, write_mesh
 from neuralcol.handling.objectives import CartesianObjective, LatentObjective
@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> None:
     margins = [] if args.no_verify else \
         [float(m) for m in (args.margins or OmegaConf.select(cfg, "handler.verify_margins", default=[]))]
     faces = space.faces.numpy()
-    labeler = instantiate(cfg.labeling.labeler)(faces, space.rest_vertices.numpy(), partition=space.partition.numpy())
+    labeler = build_labeler(cfg.labeling, faces, space.rest_vertices.numpy(), partition=space.partition.numpy())
 
     def handle(rows: np.ndarray, margin: float):
         idx_map = torch.as_tensor(rows)

@@ -26,6 +26,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from neuralcol.active.oracle import LatentOracle
+from neuralcol.collision.backends import build_labeler
 from neuralcol.collision.pool import LabelPool
 from neuralcol.data.features import dataset_features
 from neuralcol.geometry.mesh_io import write_meshes
@@ -61,7 +62,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     # exact labels of the data set's own meshes (the paper assumes they are (nearly) collision-free)
     faces = ds.faces.numpy()
     rest = ds.vertices[cfg.dataset.reference_index].numpy().astype("float64")
-    labeler = instantiate(cfg.labeling.labeler)(faces, rest)
+    labeler = build_labeler(cfg.labeling, faces, rest)
     t0 = time.perf_counter()
     with LabelPool(labeler, **OmegaConf.to_container(cfg.labeling.pool), desc="labeling data set") as pool:
         # a mesh the labeler fails on is reported (index, reason) and left out of these statistics
@@ -83,7 +84,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     logger.experiment.add_mesh("subdomains", vertices=torch.as_tensor(rest[None]).float(),
                                colors=torch.as_tensor(colors[None]), faces=torch.as_tensor(faces[None]))
     # the neural collision detector, trained by the configured method on labeled decoded samples
-    sample_labeler = instantiate(cfg.labeling.labeler)(faces, rest, partition=part)
+    sample_labeler = build_labeler(cfg.labeling, faces, rest, partition=part)
     t0 = time.perf_counter()
     settings = alm_settings(cfg.handler.alm)
     with LabelPool(sample_labeler, **OmegaConf.to_container(cfg.labeling.pool)) as pool:

@@ -156,6 +156,19 @@ def _label_chunk_with(labeler: ExactLabeler, chunk: np.ndarray) -> list[Label | 
         an exception or returned a non-finite PD.
     """
     out: list[Label | str] = []
+    if getattr(labeler, "batched", False) and len(chunk) > 1:
+        # a batched backend (e.g. the GPU labeler) labels the whole chunk at once; if that raises, every mesh is
+        # labelled alone below, so one bad mesh still fails alone
+        try:
+            labels = labeler.label_batch(chunk)
+        except Exception:
+            labels = None
+        if labels is not None:
+            for i in range(len(chunk)):
+                lb = Label(bool(labels.collides[i]), int(labels.n_pairs[i]), float(labels.pd[i]), labels.pd_sub[i])
+                ok = np.isfinite(lb.pd) and np.isfinite(lb.pd_sub).all()
+                out.append(lb if ok else f"non-finite label (pd={lb.pd})")
+            return out
     for v in chunk:
         try:
             lb = labeler.label(v)
@@ -269,8 +282,10 @@ class LabelPool:
     def __init__(self, labeler: ExactLabeler, workers: int = 0, chunk_size: int = 32,
                  executor: cf.Executor | None = None, progress: bool = False, desc: str = "labeling",
                  mp_context: str = "spawn", timeout: float | None = None, max_restarts: int = 10):
-        if not isinstance(labeler, ExactLabeler):
-            raise TypeError(f"LabelPool: labeler is a {type(labeler).__name__}; pass an ExactLabeler")
+        missing = [a for a in ("label", "n_vertices", "n_parts") if not hasattr(labeler, a)]
+        if missing:
+            raise TypeError(f"LabelPool: labeler is a {type(labeler).__name__} without {', '.join(missing)}; pass an "
+                            "ExactLabeler or another labeling backend (neuralcol.collision.backends)")
         if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 0:
             raise ValueError(f"LabelPool: workers={workers!r}; use an int >= 0 (0 or 1 label in this process)")
         if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:

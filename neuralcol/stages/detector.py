@@ -36,6 +36,9 @@ def samples_cache_dir(cache_dir: str | Path, latent_key: str, labeler) -> Path:
     """``<cache>/collision/<key>``: key of the latent space and of the labeler's settings."""
     settings = {"latent": latent_key, "eps": float(labeler.eps), "cap": float(labeler.cap),
                 "tau": float(labeler.tau), "n_parts": int(labeler.n_parts)}
+    kind = getattr(labeler, "label_kind", "exact")
+    if kind != "exact":  # another definition of the labels (e.g. python-fcl's): never mixed with ours
+        settings["labels"] = str(kind)
     key = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
     folder = Path(cache_dir) / "collision" / key
     folder.mkdir(parents=True, exist_ok=True)

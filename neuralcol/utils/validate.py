@@ -50,7 +50,8 @@ def config_problems(cfg: DictConfig) -> list[str]:
     need("labeling.labeler.touch_tol", lambda v: float(v) >= 0, "must be >= 0")
     need("method.projected_fraction", lambda v: 0 <= float(v) <= 1, "must lie in [0, 1]")
     choices = {"detector.newton.coordinates": ("box", "raw"), "autoencoder.box_from": ("train", "all"),
-               "autoencoder.level1.activation": ("tanh", "linear"), "method.start": ("dc", "uncertain")}
+               "autoencoder.level1.activation": ("tanh", "linear"), "method.start": ("dc", "uncertain"),
+               "labeling.backend": ("cpu", "gpu", "fcl", "auto")}
     for key, allowed in choices.items():
         if _get(cfg, key) is not None:
             need(key, lambda v, allowed=allowed: v in allowed, f"use one of {', '.join(allowed)}")
