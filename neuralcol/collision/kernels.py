@@ -14,6 +14,13 @@ _EPS_AXIS = 1e-24  # squared length below which a SAT axis is degenerate (relati
 
 
 # ----------------------------------------------------------------------------------------- vectors
+# A computed lower bound of a clearance term (a box gap, a SAT-axis gap, a cone angle) may exceed the computed term
+# by a few ulps (different operations); it rules a term out only with this margin, so a skipped term is always
+# >= the clearance it was compared with, and the minimum does not depend on the order the pairs are visited in.
+BOUND_SHRINK = 1.0 - 1e-9
+BOUND_GROW = 1.0 + 1e-9
+
+
 @njit(cache=True, inline="always")
 def _sub(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
@@ -636,9 +643,9 @@ def _pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap, cle
         depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
     else:
         lb = _box_gap(p0, p1, p2, q0, q1, q2)
-        if lb > 0.0 and lb >= _part_min(clear, part, faces, a, b, cap):
+        if lb > 0.0 and lb * BOUND_SHRINK >= _part_min(clear, part, faces, a, b, cap):
             return False, 0.0, 0.0  # apart by more than any clearance this pair could still lower
-        if plane_separated(p0, p1, p2, q0, q1, q2, cap):
+        if plane_separated(p0, p1, p2, q0, q1, q2, cap * BOUND_GROW):
             return False, 0.0, 0.0  # apart by more than cap: no overlap, clearance term >= cap
         if plane_separated(p0, p1, p2, q0, q1, q2, tau):
             depth = -1.0
@@ -814,7 +821,7 @@ def label_mesh(verts, faces, pairs, scale, tau, cap, part, n_parts, adj_ptr, adj
                n_edges, closed, orient, near_ptr, near_b, near_rest):
     """Counted pairs, per-part PD_i (K,) and per-vertex penetration depth (V,) of one mesh, evaluating every
     pair of ``pairs`` (the non-adjacent pairs whose boxes are within ``cap``): the reference path, quadratic
-    in the mesh density (see :func:`near_clearances` for the pruned one)."""
+    in the mesh density (see :func:`near_pass` for the pruned one)."""
     clear = np.full(n_parts, np.inf)
     floor = np.zeros(n_parts)
     n_pairs, rec_key, rec_int, n_rec = pair_pass(verts, faces, pairs, scale, tau, cap, part, clear, floor,
@@ -887,84 +894,6 @@ def _axes_gap(axes, inv, lo, hi, f, q0, q1, q2):
         ov = min(hi[f, k] - min(b0, b1, b2), max(b0, b1, b2) - lo[f, k])
         g = max(g, -ov)
     return g
-
-
-@njit(cache=True)
-def near_clearances(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, lo_cap, hi_cap, axes, inv,
-                    ax_lo, ax_hi, scale, tau, cap, clear, part):
-    """Lower ``clear`` (per part, in place) by the clearance terms of the near pairs whose boxes are disjoint
-    (pairs with overlapping boxes are :func:`pair_pass`'s) but within ``cap`` (``lo_cap``/``hi_cap``: boxes
-    grown by cap / 2, the reference's candidate test).
-
-    Bound: a near pair not sharing a vertex has ``c = cap * m / r`` (``r > 0`` its rest separation) with
-    ``m = max(-depth, 0)``, and ``m >= g``, the largest gap along the pair's own per-triangle SAT axes
-    (:func:`_axes_gap`, the same floating-point values as in the SAT, so the inequality holds exactly, and
-    the multiplication and division keep it). So ``cap * g / r >= thr`` proves ``c >= thr``; with ``thr`` the
-    largest current clearance (capped) of the pair's parts, the pair cannot lower any of them and is skipped
-    (first against the largest clearance of all parts, which needs no per-pair lookup). Returns the number of
-    pairs evaluated in full.
-    """
-    n_faces = faces.shape[0]
-    tv = np.empty((n_faces, 9))  # vertices of each triangle, contiguous
-    for f in range(n_faces):
-        for i in range(3):
-            for d in range(3):
-                tv[f, 3 * i + d] = verts[faces[f, i], d]
-    n_full = 0
-    for a in range(n_faces):
-        t_all = min(clear.max(), cap)
-        if t_all <= 0.0:
-            break  # every clearance is 0
-        p0 = (tv[a, 0], tv[a, 1], tv[a, 2])
-        p1 = (tv[a, 3], tv[a, 4], tv[a, 5])
-        p2 = (tv[a, 6], tv[a, 7], tv[a, 8])
-        for idx in range(near_ptr[a], near_ptr[a + 1]):
-            b = near_b[idx]
-            r = near_rest[idx]
-            bound = not near_shared[idx] and r > 0.0
-            if bound:
-                q0 = (tv[b, 0], tv[b, 1], tv[b, 2])
-                q1 = (tv[b, 3], tv[b, 4], tv[b, 5])
-                q2 = (tv[b, 6], tv[b, 7], tv[b, 8])
-                ga = cap * _axes_gap(axes, inv, ax_lo, ax_hi, a, q0, q1, q2) / r
-                if ga >= t_all:
-                    continue
-            if _boxes_overlap(lo0, hi0, a, b) or not _boxes_overlap(lo_cap, hi_cap, a, b):
-                continue
-            thr = _part_min(clear, part, faces, a, b, cap)
-            if thr <= 0.0:
-                continue  # c >= 0 >= every clearance of the pair's parts
-            if bound:
-                if ga >= thr or cap * _axes_gap(axes, inv, ax_lo, ax_hi, b, p0, p1, p2) / r >= thr:
-                    continue
-            n_full += 1
-            shared = 1 if near_shared[idx] else 0
-            evaluated, depth, c = _pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap, clear,
-                                              part)
-            if evaluated:
-                _lower_clearance(clear, part, faces, a, b, c)
-    return n_full
-
-
-@njit(cache=True)
-def far_clearances(verts, faces, pairs, near_ptr, near_b, near_rest, lo0, hi0, lo_cap, hi_cap, scale, tau, cap,
-                   clear, part):
-    """Lower ``clear`` (in place) by the clearance terms of the far pairs among ``pairs`` that the reference
-    considers (boxes within cap, i.e. ``lo_cap``/``hi_cap`` overlap) and :func:`pair_pass` did not (boxes
-    disjoint). Returns the number of far pairs evaluated."""
-    n_eval = 0
-    for k in range(pairs.shape[0]):
-        a = pairs[k, 0]
-        b = pairs[k, 1]
-        if _boxes_overlap(lo0, hi0, a, b) or not _boxes_overlap(lo_cap, hi_cap, a, b):
-            continue
-        if shared_vertex_count(faces, a, b) > 0 or _near_index(near_ptr, near_b, a, b) >= 0:
-            continue  # adjacent, or near (every pair sharing a vertex is near): not a far pair
-        evaluated, depth, c = _pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear, part)
-        if evaluated:
-            n_eval += 1
-            _lower_clearance(clear, part, faces, a, b, c)
-    return n_eval
 
 
 @njit(cache=True)
@@ -1085,3 +1014,324 @@ def _penetration_depths(verts, faces, seeds, adj_ptr, adj_idx, adj_eid, blocked,
                     best = d
             depth[v] = best
     return depth
+
+
+# ----------------------------------------------------------------------------------------- pruned label passes
+@njit(cache=True, inline="always")
+def _count_pair(verts, faces, a, b, depth, tau, part, floor, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int,
+                n_rec):
+    """A counted pair (depth > tau): raise the floor of its parts and append its crossing records."""
+    for t in (a, b):
+        for i in range(3):
+            pi = part[faces[t, i]]
+            floor[pi] = max(floor[pi], depth - tau)
+    return _add_crossings(verts, faces, a, b, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)
+
+
+@njit(cache=True)
+def corner_cones(verts, faces):
+    """The corner of every triangle at each of its vertices as a cone of directions: (F, 3, 3) unit axis and
+    (F, 3) half-angle (the angle from the axis to either edge; pi for a degenerate corner)."""
+    n = faces.shape[0]
+    axis = np.zeros((n, 3, 3))
+    half = np.full((n, 3), np.pi)
+    for f in range(n):
+        for i in range(3):
+            p = _pt(verts, faces[f, i])
+            u1 = _sub(_pt(verts, faces[f, (i + 1) % 3]), p)
+            u2 = _sub(_pt(verts, faces[f, (i + 2) % 3]), p)
+            l1 = np.sqrt(_dot(u1, u1))
+            l2 = np.sqrt(_dot(u2, u2))
+            if l1 <= 0.0 or l2 <= 0.0:
+                continue
+            u1 = _scale(u1, 1.0 / l1)
+            u2 = _scale(u2, 1.0 / l2)
+            m = _add(u1, u2)
+            lm = np.sqrt(_dot(m, m))
+            if lm <= 1e-8:
+                continue
+            for d in range(3):
+                axis[f, i, d] = m[d] / lm
+            half[f, i] = 0.5 * np.arccos(min(max(_dot(u1, u2), -1.0), 1.0))
+    return axis, half
+
+
+CONE_MARGIN = 1e-6  # radians taken off the cone bound (round-off of arccos near 1 is ~1e-8)
+
+
+@njit(cache=True, inline="always")
+def _cone_gap(faces, a, b, axis, half):
+    """Lower bound of :func:`wedge_gap` for triangles a and b sharing one vertex, from their corner cones:
+    ``2 sin(lb / 2)`` with ``lb`` the angle between the cone axes minus both half-angles and
+    :data:`CONE_MARGIN`, or -1 if ``lb <= 0`` (no bound; the corners may overlap)."""
+    for i in range(3):
+        for j in range(3):
+            if faces[a, i] == faces[b, j]:
+                c = axis[a, i, 0] * axis[b, j, 0] + axis[a, i, 1] * axis[b, j, 1] + axis[a, i, 2] * axis[b, j, 2]
+                lb = np.arccos(min(max(c, -1.0), 1.0)) - half[a, i] - half[b, j] - CONE_MARGIN
+                if lb <= 0.0:
+                    return -1.0
+                return 2.0 * np.sin(0.5 * lb)
+    return -1.0
+
+
+@njit(cache=True)
+def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, lo_cap, hi_cap, axes, inv, ax_lo,
+              ax_hi, cone_axis, cone_half, scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient,
+              rec_key, rec_int, n_rec):
+    """Every near pair (the rest mesh's table) that the reference considers (boxes within cap): counted pairs,
+    their crossings, and the clearance terms that can lower a part's clearance. Lowers ``clear`` and raises
+    ``floor`` in place.
+
+    A pair whose boxes overlap may be counted (d > tau); a pair whose boxes are disjoint cannot (as in the
+    reference, whose counted pairs come from overlapping boxes). The per-triangle SAT axes give
+    ``g <= -depth`` exactly (:func:`_axes_gap`), so a pair not sharing a vertex with ``g > tau`` is not
+    counted and its term ``c = cap * max(-depth, 0) / r >= cap * g / r``: it is evaluated only if that bound
+    is below the largest current clearance of its parts (then it might lower one). To make that threshold
+    low early, the pair with the smallest bound of each part is evaluated first. Pairs sharing a vertex and
+    pairs touching at rest (no bound) are always evaluated, as in the reference. Skipping a term that is
+    >= the current clearance leaves every minimum, maximum and count unchanged, so the labels equal the
+    reference's bit for bit.
+
+    Returns:
+        n_pairs (counted), rec_key, rec_int, n_rec (crossing records, possibly grown).
+    """
+    n_faces = faces.shape[0]
+    n_parts = clear.shape[0]
+    todo_a = np.empty(near_b.shape[0], dtype=np.int64)
+    todo_i = np.empty(near_b.shape[0], dtype=np.int64)
+    todo_bound = np.empty(near_b.shape[0])
+    n_todo = 0
+    best_bound = np.full(n_parts, np.inf)
+    best_k = np.full(n_parts, -1, dtype=np.int64)
+    n_pairs = 0
+    for a in range(n_faces):
+        p0 = _pt(verts, faces[a, 0])
+        p1 = _pt(verts, faces[a, 1])
+        p2 = _pt(verts, faces[a, 2])
+        for idx in range(near_ptr[a], near_ptr[a + 1]):
+            b = near_b[idx]
+            if not _boxes_overlap(lo_cap, hi_cap, a, b):
+                continue  # not a candidate of the reference
+            overlap = _boxes_overlap(lo0, hi0, a, b)
+            r = near_rest[idx]
+            bound = -np.inf
+            if near_shared[idx]:
+                # c = cap * wedge_gap / r; a positive cone bound also rules out an overlap beyond the vertex
+                g = _cone_gap(faces, a, b, cone_axis, cone_half)
+                if g > 0.0:
+                    bound = cap if r <= 0.0 else cap * (g * BOUND_SHRINK) / r
+            else:
+                q0 = _pt(verts, faces[b, 0])
+                q1 = _pt(verts, faces[b, 1])
+                q2 = _pt(verts, faces[b, 2])
+                g = max(_axes_gap(axes, inv, ax_lo, ax_hi, a, q0, q1, q2),
+                        _axes_gap(axes, inv, ax_lo, ax_hi, b, p0, p1, p2))
+                if not overlap or g > tau:  # not counted; c >= bound (c = cap when the pair touches at rest)
+                    bound = cap if r <= 0.0 else cap * (g * BOUND_SHRINK) / r
+            if overlap and bound == -np.inf:  # may be counted: evaluate now
+                shared = 1 if near_shared[idx] else 0
+                evaluated, depth, c = _pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap,
+                                                  clear, part)
+                if evaluated:
+                    _lower_clearance(clear, part, faces, a, b, c)
+                    if depth > tau:
+                        n_pairs += 1
+                        rec_key, rec_int, n_rec = _count_pair(verts, faces, a, b, depth, tau, part, floor, adj_ptr,
+                                                              adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)
+                continue
+            todo_a[n_todo] = a
+            todo_i[n_todo] = idx
+            todo_bound[n_todo] = bound
+            for t in (a, b):
+                for i in range(3):
+                    pi = part[faces[t, i]]
+                    if bound < best_bound[pi]:
+                        best_bound[pi] = bound
+                        best_k[pi] = n_todo
+            n_todo += 1
+    # the most promising pair of each part first, then the rest against the lowered thresholds
+    for step in range(n_parts + n_todo):
+        k = best_k[step] if step < n_parts else step - n_parts
+        if k < 0:
+            continue
+        if step >= n_parts and todo_bound[k] == np.inf:
+            continue  # done in the first round
+        a = todo_a[k]
+        idx = todo_i[k]
+        b = near_b[idx]
+        thr = _part_min(clear, part, faces, a, b, cap)
+        if thr <= 0.0 or todo_bound[k] >= thr:
+            continue
+        todo_bound[k] = np.inf  # mark done
+        shared = 1 if near_shared[idx] else 0
+        evaluated, depth, c = _pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap, clear, part)
+        if evaluated:
+            _lower_clearance(clear, part, faces, a, b, c)
+    return n_pairs, rec_key, rec_int, n_rec
+
+
+@njit(cache=True, inline="always")
+def _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi):
+    """Largest gap between triangles a and b along their own SAT axes: ``<= -depth`` and ``<= distance``."""
+    return max(_axes_gap(axes, inv, ax_lo, ax_hi, a, _pt(verts, faces[b, 0]), _pt(verts, faces[b, 1]),
+                         _pt(verts, faces[b, 2])),
+               _axes_gap(axes, inv, ax_lo, ax_hi, b, _pt(verts, faces[a, 0]), _pt(verts, faces[a, 1]),
+                         _pt(verts, faces[a, 2])))
+
+
+@njit(cache=True)
+def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, skip2, near_ptr, near_b, near_rest,
+             axes, inv, ax_lo, ax_hi, scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key,
+             rec_int, n_rec):
+    """Every far pair (not adjacent, sharing no vertex, not in the near table) that matters, found with one
+    uniform grid over the boxes ``lo``/``hi`` (grown by at least half the largest clearance still to beat):
+    far pairs with overlapping boxes are evaluated in full (they may be counted), far pairs with disjoint
+    boxes within cap lower the clearance (their term is the distance; only when a triangle is ``active``,
+    i.e. some part of its vertices still has a clearance > 0, and the rest centroids ``pts`` are at least
+    ``sqrt(skip2)`` apart: closer pairs are near). Each pair is visited once (the cell of the lower corner
+    of the two grown boxes' intersection) and evaluated as it is found.
+
+    Returns:
+        n_pairs (counted), rec_key, rec_int, n_rec.
+    """
+    n = lo.shape[0]
+    origin = np.empty(3)
+    for d in range(3):
+        origin[d] = lo[:, d].min()
+    inv_cell = 1.0 / cell
+    ilo = np.empty((n, 3), dtype=np.int64)
+    ihi = np.empty((n, 3), dtype=np.int64)
+    total = 0
+    for f in range(n):
+        cnt = 1
+        for d in range(3):
+            ilo[f, d] = int((lo[f, d] - origin[d]) * inv_cell)
+            ihi[f, d] = int((hi[f, d] - origin[d]) * inv_cell)
+            cnt *= ihi[f, d] - ilo[f, d] + 1
+        total += cnt
+    dims = np.empty(3, dtype=np.int64)
+    for d in range(3):
+        dims[d] = ihi[:, d].max() + 1
+    keys = np.empty(total, dtype=np.int64)
+    ids = np.empty(total, dtype=np.int64)
+    k = 0
+    for f in range(n):
+        for x in range(ilo[f, 0], ihi[f, 0] + 1):
+            for y in range(ilo[f, 1], ihi[f, 1] + 1):
+                for z in range(ilo[f, 2], ihi[f, 2] + 1):
+                    keys[k] = (x * dims[1] + y) * dims[2] + z
+                    ids[k] = f
+                    k += 1
+    order = np.argsort(keys, kind="quicksort")
+    keys = keys[order]
+    ids = ids[order]
+    # entries in cell order, each cell's entries sorted by their box's lower x (insertion sort: cells are
+    # small), copied contiguously; a sweep along x stops at the first entry that starts beyond the box's end
+    s_lo = np.empty((total, 3))
+    s_hi = np.empty((total, 3))
+    for e in range(total):
+        f = ids[e]
+        for d in range(3):
+            s_lo[e, d] = lo[f, d]
+            s_hi[e, d] = hi[f, d]
+    start = 0
+    while start < total:
+        end = start + 1
+        while end < total and keys[end] == keys[start]:
+            end += 1
+        for e in range(start + 1, end):
+            x = s_lo[e, 0]
+            f = ids[e]
+            y0 = s_lo[e, 1]
+            z0 = s_lo[e, 2]
+            x1 = s_hi[e, 0]
+            y1 = s_hi[e, 1]
+            z1 = s_hi[e, 2]
+            m = e - 1
+            while m >= start and s_lo[m, 0] > x:
+                ids[m + 1] = ids[m]
+                for d in range(3):
+                    s_lo[m + 1, d] = s_lo[m, d]
+                    s_hi[m + 1, d] = s_hi[m, d]
+                m -= 1
+            ids[m + 1] = f
+            s_lo[m + 1, 0] = x
+            s_lo[m + 1, 1] = y0
+            s_lo[m + 1, 2] = z0
+            s_hi[m + 1, 0] = x1
+            s_hi[m + 1, 1] = y1
+            s_hi[m + 1, 2] = z1
+        start = end
+    # per triangle, the largest clearance (capped) among its vertices' parts when the pass starts
+    tri_thr = np.zeros(n)
+    for f in range(n):
+        if active[f]:
+            for i in range(3):
+                tri_thr[f] = max(tri_thr[f], min(clear[part[faces[f, i]]], cap))
+    n_pairs = 0
+    start = 0
+    while start < total:
+        end = start + 1
+        while end < total and keys[end] == keys[start]:
+            end += 1
+        key = keys[start]
+        cz = key % dims[2]
+        cy = (key // dims[2]) % dims[1]
+        cx = key // (dims[2] * dims[1])
+        for i in range(start, end):
+            a0 = ids[i]
+            ax1 = s_hi[i, 0]
+            for j in range(i + 1, end):
+                if s_lo[j, 0] > ax1:
+                    break  # this and every later entry of the cell start beyond a0's box in x
+                if (s_lo[j, 1] > s_hi[i, 1] or s_lo[i, 1] > s_hi[j, 1] or s_lo[j, 2] > s_hi[i, 2]
+                        or s_lo[i, 2] > s_hi[j, 2]):
+                    continue  # (x overlaps: s_lo[i, 0] <= s_lo[j, 0] <= s_hi[i, 0])
+                b0 = ids[j]
+                if (max(ilo[a0, 0], ilo[b0, 0]) != cx or max(ilo[a0, 1], ilo[b0, 1]) != cy
+                        or max(ilo[a0, 2], ilo[b0, 2]) != cz):
+                    continue
+                a = min(a0, b0)
+                b = max(a0, b0)
+                if _boxes_overlap(lo0, hi0, a, b):
+                    if _near_index(near_ptr, near_b, a, b) >= 0 or shared_vertex_count(faces, a, b) > 0:
+                        continue  # near or adjacent: not a far pair
+                    g = _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi)
+                    if g > tau and g * BOUND_SHRINK >= _part_min(clear, part, faces, a, b, cap):
+                        continue  # not counted (depth <= -g), and its distance >= g cannot lower a clearance
+                    evaluated, depth, c = _pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear,
+                                                      part)
+                    if evaluated:
+                        _lower_clearance(clear, part, faces, a, b, c)
+                        if depth > tau:
+                            n_pairs += 1
+                            rec_key, rec_int, n_rec = _count_pair(verts, faces, a, b, depth, tau, part, floor,
+                                                                  adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int,
+                                                                  n_rec)
+                    continue
+                t = max(tri_thr[a], tri_thr[b])  # >= the pair's current threshold (clearances only fall)
+                if t <= 0.0 or not _boxes_overlap(lo_cap, hi_cap, a, b):
+                    continue
+                g2 = 0.0  # Euclidean gap of the boxes, as _pair_terms computes it: a lower bound of the distance
+                for d in range(3):
+                    gap = max(lo0[b, d] - hi0[a, d], lo0[a, d] - hi0[b, d], 0.0)
+                    g2 += gap * gap
+                lb = np.sqrt(g2)
+                if lb > 0.0 and lb * BOUND_SHRINK >= t:
+                    continue
+                dd = 0.0
+                for d in range(3):
+                    dd += (pts[a, d] - pts[b, d]) ** 2
+                if dd < skip2:
+                    continue  # closer than cap at rest: near
+                if _near_index(near_ptr, near_b, a, b) >= 0 or shared_vertex_count(faces, a, b) > 0:
+                    continue
+                thr = _part_min(clear, part, faces, a, b, cap)
+                if thr <= 0.0 or _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi) * BOUND_SHRINK >= thr:
+                    continue  # its distance >= the gap cannot lower a clearance
+                evaluated, depth, c = _pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear, part)
+                if evaluated:
+                    _lower_clearance(clear, part, faces, a, b, c)
+        start = end
+    return n_pairs, rec_key, rec_int, n_rec

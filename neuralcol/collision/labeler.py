@@ -50,16 +50,15 @@ from typing import NamedTuple
 import numpy as np
 
 from neuralcol.collision.kernels import (
+    corner_cones,
     drop_adjacent,
-    far_clearances,
+    far_pass,
     finish_label,
     grid_pairs,
-    grid_pairs_active,
     label_mesh,
-    near_clearances,
+    near_pass,
     near_table,
     pair_depths,
-    pair_pass,
     triangle_aabbs,
     triangle_axes,
     verdict_kernel,
@@ -250,18 +249,21 @@ class ExactLabeler:
         lo_cap, hi_cap = triangle_aabbs(v, f, 0.5 * self.cap)
         clear = np.full(self.n_parts, np.inf)
         floor = np.zeros(self.n_parts)
-        # 1. pairs with overlapping boxes: every counted pair (d > tau needs overlapping boxes, as for the
-        #    verdict), their crossing edges, and their clearance terms
-        pairs = drop_adjacent(f, grid_pairs(lo0, hi0, self.cell))
-        n_pairs, rec_key, rec_int, n_rec = pair_pass(v, f, pairs, self.ell, self.tau, self.cap, self.partition,
-                                                     clear, floor, self.adj_ptr, self.adj_idx, self.adj_eid,
-                                                     self.orient, self._near_ptr, self._near_b, self._near_rest)
-        # 2. near pairs with disjoint boxes: only those a per-triangle SAT bound cannot rule out
-        axes, inv, ax_lo, ax_hi = triangle_axes(v, f, self.ell)
-        near_clearances(v, f, self._near_ptr, self._near_b, self._near_rest, self._near_shared, lo0, hi0, lo_cap,
-                        hi_cap, axes, inv, ax_lo, ax_hi, self.ell, self.tau, self.cap, clear, self.partition)
-        # 3. far pairs with disjoint boxes: only those closer than the clearance they would have to beat
-        self._far_search(v, lo0, hi0, lo_cap, hi_cap, clear)
+        rec_key = np.empty(64)
+        rec_int = np.empty((64, 5), dtype=np.int64)
+        # 1. near pairs, from the rest mesh's table (no broadphase): counted pairs among those with overlapping
+        #    boxes, and the clearance terms a per-triangle SAT bound cannot rule out
+        axes = triangle_axes(v, f, self.ell)
+        cones = corner_cones(v, f)
+        n_near, rec_key, rec_int, n_rec = near_pass(
+            v, f, self._near_ptr, self._near_b, self._near_rest, self._near_shared, lo0, hi0, lo_cap, hi_cap, *axes,
+            *cones, self.ell, self.tau, self.cap, clear, floor, self.partition, self.adj_ptr, self.adj_idx,
+            self.adj_eid, self.orient, rec_key, rec_int, 0)
+        # 2. far pairs, one grid: counted pairs among those with overlapping boxes, and the clearance terms of
+        #    the pairs closer than the clearance they would have to beat
+        n_far, rec_key, rec_int, n_rec = self._far_pass(v, lo0, hi0, lo_cap, hi_cap, axes, clear, floor, rec_key,
+                                                        rec_int, n_rec)
+        n_pairs = n_near + n_far
         out, depth_v = finish_label(v, f, rec_key, rec_int, n_rec, len(self.edges), floor, clear, self.partition,
                                     self.n_parts, self.cap, self.adj_ptr, self.adj_idx, self.adj_eid, self.closed)
         return n_pairs, out, depth_v
@@ -274,30 +276,25 @@ class ExactLabeler:
                           self.adj_ptr, self.adj_idx, self.adj_eid, len(self.edges), self.closed, self.orient,
                           self._near_ptr, self._near_b, self._near_rest)
 
-    def _far_search(self, v, lo0, hi0, lo_cap, hi_cap, clear) -> None:
-        """Lower ``clear`` by the far pairs that could still lower it: those closer than the clearance to beat.
-
-        A far pair's term is its Euclidean distance (or 0 when it overlaps), and
-        ``distance >= Euclidean box gap >= largest per-axis box gap``. A grid search with boxes grown by
-        ``(r + margin) / 2`` finds every pair whose per-axis box gaps are all <= r + margin, so a pair it
-        misses has distance > r (``margin`` = 1e-9 cap covers the round-off of the grown boxes and of the
-        distance, ~1e-16 of the coordinates). With ``r`` the largest current ``min(clear_i, cap)``, no missed
-        pair can lower any part's clearance. Only triangles of parts whose clearance is not already 0 start
-        pairs, and the grid leaves out the pairs whose rest centroids are closer than cap: their rest distance
-        is below cap, so they are near pairs (:func:`near_clearances`), not far ones. (Growing ``r`` per part
-        from the smallest clearance, doubling, was tried: one more grid pass, ~8% slower on SCAPE.)
-        """
+    def _far_pass(self, v, lo0, hi0, lo_cap, hi_cap, axes, clear, floor, rec_key, rec_int, n_rec):
+        """Far pairs (:func:`~neuralcol.collision.kernels.far_pass`), one grid over boxes grown by
+        ``(r + margin) / 2`` with ``r`` the largest current ``min(clear_i, cap)``: it holds every far pair with
+        overlapping boxes (they may be counted) and every far pair whose per-axis box gaps are all <= r + margin,
+        so a far pair it misses has distance > r and cannot lower any clearance (``margin`` = 1e-9 cap covers
+        the round-off of the grown boxes and of the distance, ~1e-16 of the coordinates). Triangles of parts
+        whose clearance is already 0 start no clearance pairs, and pairs whose rest centroids are closer than
+        cap are near pairs (their rest distance is below cap), not far ones."""
         thr = np.minimum(clear, self.cap)
-        if (thr <= 0.0).all():
-            return
-        r = float(thr.max())
+        r = max(float(thr.max()), 0.0)
         margin = 1e-9 * self.cap
         near2 = (self.cap - margin) ** 2
         active = (thr > 0.0)[self._tri_part].any(1)
         lo, hi = triangle_aabbs(v, self.faces, 0.5 * (r + margin))
-        pairs = grid_pairs_active(lo, hi, max(self.cell, r + margin), active, self._rest_centroids, near2)
-        far_clearances(v, self.faces, pairs, self._near_ptr, self._near_b, self._near_rest, lo0, hi0, lo_cap, hi_cap,
-                       self.ell, self.tau, self.cap, clear, self.partition)
+        return far_pass(v, self.faces, lo, hi, max(self.cell, r + margin), lo0, hi0, lo_cap, hi_cap, active,
+                        self._rest_centroids, near2, self._near_ptr, self._near_b, self._near_rest, *axes, self.ell,
+                        self.tau,
+                        self.cap, clear, floor, self.partition, self.adj_ptr, self.adj_idx, self.adj_eid, self.orient,
+                        rec_key, rec_int, n_rec)
 
     def label_batch(self, vertices) -> Labels:
         """Labels of a batch (B, V, 3), in-process (see :class:`~neuralcol.collision.pool.LabelPool`)."""
