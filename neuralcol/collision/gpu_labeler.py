@@ -41,6 +41,7 @@ from neuralcol.collision.labeler import ExactLabeler, Label, Labels, split_subse
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
 
 _EPS_AXIS = 1e-24  # as kernels._EPS_AXIS
+_MAX_TRI_POSES = 1 << 22  # triangle x pose slots per launch (about 200 bytes each on the device)
 _F32_REL = wp.constant(1e-6)  # outward rounding of the float32 broadphase boxes (float32 rounds within 6e-8 relative)
 
 
@@ -608,9 +609,11 @@ class BatchedLabeler:
         rest_vertices: (V, 3) float rest mesh (sets ell, diag, the near table).
         partition: (V,) int part of each vertex, or None for one part.
         device: Warp device (``"cuda:0"``, ``"cpu"``, ...); None: ``cuda:0`` if available, else ``cpu``.
-        touch_tol, clearance_cap, boundary_eps, cell_factor: as for ExactLabeler.
-        max_batch: poses per kernel launch; larger batches are labelled in slices of this size (bounds the
-            device memory: about 200 bytes per triangle and pose).
+        touch_tol, clearance_cap, boundary_eps: as for ExactLabeler.
+        cell_factor, prune: accepted for ExactLabeler's settings; the device path does not use them (its
+            broadphase is a BVH, and it evaluates every pair within cap, which gives the pruned labels).
+        max_batch: poses per kernel launch; larger batches are labelled in slices of this size. It is lowered so
+            that a launch holds at most 2**22 triangle-poses (about 200 bytes each on the device: 0.8 GB).
 
     Attributes as ExactLabeler (n_vertices, n_parts, faces, rest, ell, diag, tau, cap, eps, partition, ...),
     plus ``batched = True`` (LabelPool hands it whole chunks) and ``label_kind = "exact"`` (same labels, same
@@ -622,9 +625,8 @@ class BatchedLabeler:
 
     def __init__(self, faces, rest_vertices, partition=None, device: str | None = None, touch_tol: float = 1e-6,
                  clearance_cap: float = 0.01, boundary_eps: float = 2e-3, cell_factor: float = 2.0,
-                 max_batch: int = 1024, **unused):
-        if unused:
-            raise TypeError(f"BatchedLabeler: unexpected settings {sorted(unused)}")
+                 prune: bool = True, max_batch: int = 1024):
+        del prune  # the device evaluates every pair within cap (the reference); the labels are the same
         self._ref = ExactLabeler(faces, rest_vertices, partition=partition, touch_tol=touch_tol,
                                  clearance_cap=clearance_cap, boundary_eps=boundary_eps, cell_factor=cell_factor)
         ref = self._ref
@@ -635,12 +637,11 @@ class BatchedLabeler:
         self.device = str(wp.get_device(device if device is not None else default_device()))
         if int(max_batch) < 1:
             raise ValueError("max_batch must be >= 1")
-        self.max_batch = int(max_batch)
+        # poses per launch: at most max_batch, and at most _MAX_TRI_POSES triangle-poses (device memory, int32)
+        self.max_batch = max(1, min(int(max_batch), _MAX_TRI_POSES // max(len(ref.faces), 1)))
         self._tiny = _EPS_AXIS * self.ell**4
         n_faces = len(self.faces)
         self._near_a = np.repeat(np.arange(n_faces), np.diff(ref._near_ptr)).astype(np.int32)
-        if len(self.faces) >= 2**31 // max(self.max_batch, 1):
-            raise ValueError("mesh too large for int32 indices at this max_batch")
         self._dev = None  # device arrays of the topology (built lazily; not pickled)
         self._bvh = {}  # batch size -> (lo32, hi32, groups, bvh), trees built from the rest boxes
         self.set_partition(partition)
