@@ -208,6 +208,11 @@ def test_mixed_batch_keeps_order_and_slices():
     # one pose alone, and the same pose inside the batch: identical
     one = gl.label(batch[2])
     assert one.collides == got.collides[2] and one.pd == got.pd[2]
+    tight = BatchedLabeler(faces, rest, partition=part, device=DEVICE)
+    tight._min_pair_list = 1  # the counted-pair list overflows: the launch is repeated with room for all
+    assert got.n_pairs.sum() > 16 * len(batch)
+    for name in Labels._fields:
+        np.testing.assert_array_equal(getattr(tight.label_batch(batch), name), getattr(got, name))
     empty = gl.label_batch(batch[:0])
     assert empty.pd.shape == (0,) and empty.pd_sub.shape == (0, 2)
     # torch input (CPU tensor, float32 upcast like the CPU labeler's float64 conversion)

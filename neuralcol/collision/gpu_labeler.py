@@ -622,6 +622,7 @@ class BatchedLabeler:
 
     batched = True
     label_kind = "exact"
+    _min_pair_list = 1024  # initial room for counted pairs per launch (grown and rerun when it overflows)
 
     def __init__(self, faces, rest_vertices, partition=None, device: str | None = None, touch_tol: float = 1e-6,
                  clearance_cap: float = 0.01, boundary_eps: float = 2e-3, cell_factor: float = 2.0,
@@ -752,7 +753,7 @@ class BatchedLabeler:
                   inputs=[verts, dev["faces"], 0.5 * self.cap, 1e-7 * self.cap, lo0, hi0, lo_cap, hi_cap, lo32, hi32])
         bvh.refit()
         n_near = len(self._near_a)
-        pair_cap = max(1024, 16 * n_batch)
+        pair_cap = max(self._min_pair_list, 16 * n_batch)
         while True:
             clear = wp.array(np.full((n_batch, k_parts), np.inf), dtype=wp.float64, device=d)
             floor = wp.zeros((n_batch, k_parts), dtype=wp.float64, device=d)
