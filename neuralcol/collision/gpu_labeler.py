@@ -617,7 +617,8 @@ class BatchedLabeler:
 
     Attributes as ExactLabeler (n_vertices, n_parts, faces, rest, ell, diag, tau, cap, eps, partition, ...),
     plus ``batched = True`` (LabelPool hands it whole chunks) and ``label_kind = "exact"`` (same labels, same
-    cache). It pickles: the device arrays are rebuilt lazily in the receiving process.
+    cache). It pickles: the device arrays are rebuilt lazily in the receiving process (on Warp's CPU device
+    if that process has no CUDA device).
     """
 
     batched = True
