@@ -1030,11 +1030,12 @@ def _count_pair(verts, faces, a, b, depth, tau, part, floor, adj_ptr, adj_idx, a
 
 @njit(cache=True)
 def corner_cones(verts, faces):
-    """The corner of every triangle at each of its vertices as a cone of directions: (F, 3, 3) unit axis and
-    (F, 3) half-angle (the angle from the axis to either edge; pi for a degenerate corner)."""
+    """The corner of every triangle at each of its vertices as a ball of unit directions: (F, 3, 3) unit axis
+    ``m`` (the bisector) and (F, 3) chordal radius ``rho = |u1 - m|`` (``u1``, ``u2``: unit edge directions;
+    every direction of the corner lies within ``rho`` of ``m``; 2, i.e. no bound, for a degenerate corner)."""
     n = faces.shape[0]
     axis = np.zeros((n, 3, 3))
-    half = np.full((n, 3), np.pi)
+    rho = np.full((n, 3), 2.0)
     for f in range(n):
         for i in range(3):
             p = _pt(verts, faces[f, i])
@@ -1050,34 +1051,37 @@ def corner_cones(verts, faces):
             lm = np.sqrt(_dot(m, m))
             if lm <= 1e-8:
                 continue
+            m = _scale(m, 1.0 / lm)
             for d in range(3):
-                axis[f, i, d] = m[d] / lm
-            half[f, i] = 0.5 * np.arccos(min(max(_dot(u1, u2), -1.0), 1.0))
-    return axis, half
+                axis[f, i, d] = m[d]
+            e = _sub(u1, m)
+            rho[f, i] = np.sqrt(_dot(e, e))
+    return axis, rho
 
 
-CONE_MARGIN = 1e-6  # radians taken off the cone bound (round-off of arccos near 1 is ~1e-8)
+CONE_MARGIN = 1e-9  # taken off the cone bound (chord units): covers the round-off of the unit vectors
 
 
 @njit(cache=True, inline="always")
-def _cone_gap(faces, a, b, axis, half):
-    """Lower bound of :func:`wedge_gap` for triangles a and b sharing one vertex, from their corner cones:
-    ``2 sin(lb / 2)`` with ``lb`` the angle between the cone axes minus both half-angles and
-    :data:`CONE_MARGIN`, or -1 if ``lb <= 0`` (no bound; the corners may overlap)."""
+def _cone_gap(faces, a, b, axis, rho):
+    """Lower bound of :func:`wedge_gap` for triangles a and b sharing one vertex, from their corner balls: by
+    the triangle inequality the chordal distance between any two directions of the corners is at least
+    ``|m_a - m_b| - rho_a - rho_b`` (minus :data:`CONE_MARGIN`); -1 if that is <= 0 (no bound: the corners
+    may overlap). A positive bound also proves the triangles do not overlap beyond the shared vertex."""
     for i in range(3):
         for j in range(3):
             if faces[a, i] == faces[b, j]:
-                c = axis[a, i, 0] * axis[b, j, 0] + axis[a, i, 1] * axis[b, j, 1] + axis[a, i, 2] * axis[b, j, 2]
-                lb = np.arccos(min(max(c, -1.0), 1.0)) - half[a, i] - half[b, j] - CONE_MARGIN
-                if lb <= 0.0:
-                    return -1.0
-                return 2.0 * np.sin(0.5 * lb)
+                d0 = axis[a, i, 0] - axis[b, j, 0]
+                d1 = axis[a, i, 1] - axis[b, j, 1]
+                d2 = axis[a, i, 2] - axis[b, j, 2]
+                lb = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - rho[a, i] - rho[b, j] - CONE_MARGIN
+                return lb if lb > 0.0 else -1.0
     return -1.0
 
 
 @njit(cache=True)
 def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, lo_cap, hi_cap, axes, inv, ax_lo,
-              ax_hi, cone_axis, cone_half, scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient,
+              ax_hi, cone_axis, cone_rho, scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient,
               rec_key, rec_int, n_rec):
     """Every near pair (the rest mesh's table) that the reference considers (boxes within cap): counted pairs,
     their crossings, and the clearance terms that can lower a part's clearance. Lowers ``clear`` and raises
@@ -1118,7 +1122,7 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
             bound = -np.inf
             if near_shared[idx]:
                 # c = cap * wedge_gap / r; a positive cone bound also rules out an overlap beyond the vertex
-                g = _cone_gap(faces, a, b, cone_axis, cone_half)
+                g = _cone_gap(faces, a, b, cone_axis, cone_rho)
                 if g > 0.0:
                     bound = cap if r <= 0.0 else cap * (g * BOUND_SHRINK) / r
             else:
