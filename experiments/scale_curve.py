@@ -81,13 +81,14 @@ def label_part(cfg: DictConfig, oracle, key: str, state: dict, out: Path) -> Non
     piece = int(cfg.scale.label_piece)
     limit = cfg.scale.max_label_minutes
     t_start = time.perf_counter()
+    pieces_now = 0
     while True:
         have = {name: _rows_in(p) for name, (p, _, _) in want.items()}
         todo = {name: n - have[name] for name, (_, n, _) in want.items() if have[name] < n}
         if not todo:
             print(f"labels: pool {have['pool']:,} rows, test {have['test']:,} rows: done")
             return
-        if limit is not None and time.perf_counter() - t_start > 60 * float(limit):
+        if limit is not None and pieces_now and time.perf_counter() - t_start >= 60 * float(limit):
             print(f"labels: stopped after {limit} min (scale.max_label_minutes); pool {have['pool']:,}, test "
                   f"{have['test']:,} rows; rerun to go on")
             return
@@ -95,6 +96,7 @@ def label_part(cfg: DictConfig, oracle, key: str, state: dict, out: Path) -> Non
         path, n_want, s = want[name]
         target = min(n_want, have[name] + piece)
         res = uniform_rows(path, oracle, target, s, desc=f"labeling {name} to {target:,}")
+        pieces_now += 1
         rate = res.labeled / res.seconds if res.seconds > 0 else float("nan")
         state["pieces"].append({"store": name, "rows": target, "labeled": res.labeled, "seconds": res.seconds,
                                 "labels_per_s": rate, "failed": res.n_failed,
