@@ -283,6 +283,36 @@ def bench_fcl(ctx: dict) -> dict:
                            f"{sum(table['colliding_exact'])} colliding for ExactLabeler, "
                            f"{sum(table['colliding_fcl'])} for FCL")
     return out
+def bench_dask(ctx: dict) -> dict:
+    """Labels per second of LabelPool on a dask LocalCluster (2 worker processes x 1 thread) and of the local pool
+    (2 worker processes), interleaved on the same 142 SCAPE meshes as ``pool``; ``dask_vs_pool``: their ratio."""
+    from neuralcol.collision.labeler import ExactLabeler
+    from neuralcol.collision.pool import LabelPool
+
+    ds = ctx["scape"]
+    verts = ds.vertices.numpy().astype(np.float64)
+    batch = np.concatenate([verts, verts])
+    lab = ExactLabeler(ds.faces.numpy(), verts[0])
+    reps = 3 if ctx["quick"] else 5
+    with LabelPool(lab, workers=2, chunk_size=8) as local, \
+            LabelPool(lab, executor="dask", workers=2, chunk_size=8) as dask_pool:
+        local.label(batch)  # start the workers (and the cluster) and load the kernels outside the timing
+        dask_pool.label(batch)
+        tl, td = [], []
+        for _ in range(reps):  # interleaved, so both see the same machine load
+            t0 = time.perf_counter()
+            local.label(batch)
+            tl.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            dask_pool.label(batch)
+            td.append(time.perf_counter() - t0)
+    n = len(batch)
+    ctx["notes"]["dask"] = ("LocalCluster of 2 worker processes x 1 thread on this machine (executor=dask, "
+                            "scheduler=null), chunk_size 8, vs the local pool with workers=2; "
+                            "target dask_vs_pool >= 0.8")
+    return {"dask_labels_per_s": summarize([n / t for t in td]),
+            "dask_local_pool_labels_per_s": summarize([n / t for t in tl]),
+            "dask_vs_pool": summarize([a / b for a, b in zip(tl, td)])}
 
 
 def _neural_run(ctx: dict) -> Path:
@@ -598,8 +628,8 @@ def _ratio(a: dict, b: dict) -> dict:
 
 
 BENCHES: dict[str, Callable[[dict], dict]] = {"acap": bench_acap, "labeler": bench_labeler, "pool": bench_pool,
-                                              "fcl": bench_fcl, "neural": bench_neural, "training": bench_training,
-                                              "memory": bench_memory, "gpu": bench_gpu}
+                                              "dask": bench_dask, "fcl": bench_fcl, "neural": bench_neural,
+                                              "training": bench_training, "memory": bench_memory, "gpu": bench_gpu}
 
 
 def write_markdown(results: dict, path: Path) -> None:

@@ -20,6 +20,8 @@ EXIT = 1002.0  # the process dies with os._exit(3) (never use in this process: w
 HANG = 1003.0  # label() sleeps "forever" (workers >= 2 with a timeout only)
 NAN = 1004.0  # label() returns a NaN PD
 FLAKY = 1005.0  # label() raises the first time it sees such a mesh in this process, then labels it
+EXIT_ONCE = 1006.0  # the process dies with os._exit(3) the first time any process sees such a mesh (needs
+                    # FaultLabeler.marker: a file path, created by the process that dies), then labels it
 
 _seen_flaky: set[bytes] = set()
 
@@ -34,6 +36,8 @@ def mark(vertices: np.ndarray, sentinel: float) -> np.ndarray:
 class FaultLabeler(ExactLabeler):
     """:class:`ExactLabeler` that misbehaves on meshes marked with :func:`mark`."""
 
+    marker: str | None = None  # EXIT_ONCE: file that records that a process died on such a mesh
+
     def label(self, vertices) -> Label:
         v = np.asarray(vertices)
         x = float(v[0, 0])
@@ -41,6 +45,16 @@ class FaultLabeler(ExactLabeler):
             raise ValueError("degenerate mesh (injected fault)")
         if x == EXIT:
             os._exit(3)
+        if x == EXIT_ONCE:
+            if self.marker is None:
+                raise RuntimeError("FaultLabeler.marker is not set (needed by EXIT_ONCE)")
+            try:
+                fd = os.open(self.marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)  # atomic: one process only
+            except FileExistsError:
+                pass
+            else:
+                os.close(fd)
+                os._exit(3)
         if x == HANG:
             time.sleep(1e6)
         if x == NAN:

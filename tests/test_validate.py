@@ -37,6 +37,10 @@ def test_shipped_configs_are_valid(preset):
     ("handler.alm.mu0=0", "handler.alm: handler settings"),
     ("labeling.pool.timeout=0", "labeling.pool.timeout=0: must be > 0 seconds"),
     ("labeling.pool.max_restarts=-1", "labeling.pool.max_restarts=-1: must be an integer >= 0"),
+    ("labeling.pool.executor=spark", "labeling.pool.executor='spark': use one of local (this machine's worker "
+                                     "processes), dask"),
+    ("labeling.pool.scheduler=tcp://h:8786", "labeling.pool.scheduler='tcp://h:8786': only used with "
+                                             "labeling.pool.executor=dask"),
     ("detector.newton.coordinates=normalised", "detector.newton.coordinates='normalised': use one of box, raw"),
     ("autoencoder.box_from=val", "autoencoder.box_from='val': use one of train, all"),
     ("method.start=random", "method.start='random': use one of dc, uncertain"),

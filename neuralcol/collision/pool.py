@@ -1,9 +1,19 @@
 """Labelling batches of meshes with one :class:`~neuralcol.collision.labeler.ExactLabeler` on several workers.
 
 The labeler is deterministic and each mesh is labelled independently, so a batch is cut into chunks of
-consecutive meshes, the chunks are labelled anywhere (this process, local worker processes, or any
-:class:`concurrent.futures.Executor`, e.g. a dask cluster) and reassembled in input order: the result is
-bit-identical for every choice of ``workers``, ``chunk_size`` and executor.
+consecutive meshes, the chunks are labelled anywhere and reassembled in input order: the result is bit-identical
+for every choice of ``workers``, ``chunk_size`` and executor. Where (``executor``, config
+``labeling.pool.executor``):
+
+* ``"local"`` (default): in this process (``workers`` 0 or 1) or on ``workers`` local worker processes.
+* ``"dask"``: on a dask.distributed cluster (``pip install "dask[distributed]"``), the one whose scheduler runs
+  at ``scheduler`` (``"tcp://host:8786"``; never shut down by the pool), or, with ``scheduler`` None, a
+  ``LocalCluster`` of ``workers`` worker processes x 1 thread started on this machine at the first call and
+  closed by :meth:`LabelPool.close`. The labeler is sent once, to every worker (a worker plugin, so workers
+  that join or restart later get it too); at most 2 chunks per cluster thread are in flight. Details:
+  :mod:`neuralcol.collision.pool_dask`.
+* a :class:`concurrent.futures.Executor` object you own (e.g. a ``ThreadPoolExecutor``): each task carries the
+  labeler with its chunk.
 
 Worker faults (one bad mesh never loses the batch):
 
@@ -14,14 +24,19 @@ Worker faults (one bad mesh never loses the batch):
   worker processes and resubmits the unfinished work. The meshes of the chunks that were in flight are
   suspects: they are labelled again one at a time, with nothing else running, so a mesh that kills its
   worker again is identified and reported (``"worker died (exit code 3)"``) while the innocent ones get
-  their labels.
+  their labels. On dask, the cluster's nannies restart dead workers and the scheduler runs their chunks
+  again (up to ``distributed.scheduler.allowed-failures`` deaths per chunk, no label lost); a chunk dask gives
+  up on (``KilledWorker``) has its meshes relabelled one at a time in the same way, and a mesh that kills the
+  workers alone is reported (``"worker died (dask KilledWorker: 4 workers died running it)"``).
 * **A chunk hangs** (``timeout`` seconds, pool-owned workers only): when a chunk has been running for
   ``timeout`` seconds the worker processes are killed (``ProcessPoolExecutor._processes``; if that private
   attribute is missing, the pids the workers reported at start-up are killed and the executor abandoned) and
   restarted, and the in-flight chunks become suspects as above; a mesh that times out again alone is
   reported (``"timed out after 3 s"``). At most ``workers`` chunks are in flight and new workers are probed
   before any chunk is sent, so a chunk's clock starts about when a worker takes it; only a mesh running alone
-  is ever reported, so a slow worker start-up cannot get an innocent mesh reported.
+  is ever reported, so a slow worker start-up cannot get an innocent mesh reported. On dask, each chunk reports
+  when a worker thread starts it; a chunk past ``timeout`` is cancelled, its worker process killed through its
+  nanny (which starts a new one) and its meshes relabelled one at a time as above.
 * **Non-finite input vertices** are reported as ``"non-finite vertices"`` without being labelled.
 * At most ``max_restarts`` restarts per call: past that, every mesh not labelled yet is reported, so a
   broken environment (every mesh crashing its worker) never loops. Workers that cannot start at all raise
@@ -35,8 +50,9 @@ the labels of all B rows (failed rows: ``collides`` False, ``n_pairs`` -1, ``pd`
 ``ok`` mask and the sorted list of :class:`LabelFailure` ``(index, reason)``, and logs one warning line
 per batch naming the first 10 failures. The labels of the meshes that succeed are bit-identical to a
 fault-free run. Labelling in this process (``workers`` 0 or 1) catches exceptions but cannot survive a
-crash or interrupt a hang; with a user ``executor``, exceptions are handled the same way, a broken
-executor is re-raised (it is not ours to restart) and ``timeout`` is not available.
+crash or interrupt a hang; with a user ``Executor`` object, exceptions are handled the same way, a broken
+executor is re-raised (it is not ours to restart) and ``timeout`` is not available. On dask, a lost scheduler
+connection is raised as ``RuntimeError``.
 
 This module does not import torch; torch tensors are accepted through their ``.detach().cpu().numpy()``.
 """
@@ -65,6 +81,9 @@ log = logging.getLogger(__name__)
 STARTUP_TIMEOUT = 900.0  # seconds the workers may take to start (import, unpickle the labeler, load/compile kernels)
 MAX_REASON = 300  # characters of an exception message kept in a failure reason
 REPORTED_FAILURES = 10  # failures named in a warning line / error message
+
+EXECUTORS = ("local", "dask")  # LabelPool(executor=...) by name; or a concurrent.futures.Executor object
+DASK_INSTALL = 'pip install "dask[distributed]"'
 
 # The labeler of a worker process of a LabelPool, set once by `_init_worker` (the process's own state;
 # never set in the parent process).
@@ -130,6 +149,15 @@ def _init_worker(labeler: ExactLabeler) -> None:
             labeler.label(rest)
         except Exception:  # only a warm-up: a real problem shows on the chunks
             pass
+
+
+def require_distributed() -> None:
+    """Raise ImportError (with the pip command) if dask.distributed is not installed."""
+    import importlib.util
+
+    if importlib.util.find_spec("distributed") is None:
+        raise ImportError(f"LabelPool: executor='dask' (labeling.pool.executor=dask) needs dask.distributed, which "
+                          f"is not installed; install it with: {DASK_INSTALL}")
 
 
 def _ready() -> int:
@@ -241,27 +269,26 @@ class _Batch:
 class LabelPool:
     """Labels batches of meshes (B, V, 3) with one labeler on a pool of workers, results in input order.
 
-    Three ways to run:
+    Four ways to run:
 
-    * ``workers`` 0 or 1: in this process, no executor.
-    * ``workers >= 2``: a :class:`~concurrent.futures.ProcessPoolExecutor` with ``workers`` processes, started
-      (``mp_context``, default ``"spawn"``) at the first :meth:`label` call and reused until :meth:`close`.
-      The labeler is sent once to each worker; each task carries only a chunk of ``chunk_size`` meshes.
-      With ``"spawn"`` the workers re-import the caller's main module: guard scripts with
+    * ``workers`` 0 or 1 (``executor="local"``): in this process.
+    * ``workers >= 2`` (``executor="local"``): a :class:`~concurrent.futures.ProcessPoolExecutor` with
+      ``workers`` processes, started (``mp_context``, default ``"spawn"``) at the first :meth:`label` call and
+      reused until :meth:`close`. The labeler is sent once to each worker; each task carries only a chunk of
+      ``chunk_size`` meshes. With ``"spawn"`` the workers re-import the caller's main module: guard scripts with
       ``if __name__ == "__main__":``.
-    * ``executor``: any :class:`concurrent.futures.Executor` you own (a ``ThreadPoolExecutor``, a
-      ``ProcessPoolExecutor``, dask's ``Client.get_executor()``...); ``workers`` is then ignored, each task
-      carries the labeler together with its chunk, and :meth:`close` does not shut the executor down. To label
-      on many machines with dask::
+    * ``executor="dask"``: a dask.distributed cluster, at ``scheduler`` or a ``LocalCluster`` of ``workers``
+      processes x 1 thread started here (see the module docstring). The labeler is sent once to every worker;
+      each task carries only its chunk. The workers need ``neuralcol`` (and whatever the labeler's class needs)
+      importable::
 
-          from dask.distributed import Client
-
-          client = Client("scheduler-address:8786")  # or Client() for a local cluster
-          with LabelPool(labeler, executor=client.get_executor(), chunk_size=64) as pool:
+          with LabelPool(labeler, executor="dask", scheduler="tcp://10.0.0.5:8786", chunk_size=32) as pool:
               labels = pool.label(vertices)  # (B, V, 3)
 
-      (The workers need ``neuralcol`` installed; scattering the labeler once is not needed for typical
-      sizes, it is a few MB of numpy arrays.)
+    * ``executor``: any :class:`concurrent.futures.Executor` object you own (a ``ThreadPoolExecutor``, a
+      ``ProcessPoolExecutor``, dask's ``Client.get_executor()``...); ``workers`` is then ignored, each task
+      carries the labeler together with its chunk (prefer ``executor="dask"`` on a dask cluster: it sends the
+      labeler once and recovers from worker deaths), and :meth:`close` does not shut the executor down.
 
     The labels do not depend on ``workers``, ``chunk_size`` or the executor (bit-identical). Faults (a mesh
     that raises, a worker that dies or hangs) are handled as the module docstring describes.
@@ -270,18 +297,24 @@ class LabelPool:
         labeler: the exact labeler (holds only numpy arrays, so it pickles).
         workers: number of worker processes; 0 or 1 labels in this process.
         chunk_size: meshes per task (>= 1). Larger chunks cost less overhead, smaller ones balance better.
-        executor: a user-owned executor to submit the tasks to (see above), or None.
+        executor: ``"local"`` (None means the same), ``"dask"``, or a user-owned
+            :class:`concurrent.futures.Executor` to submit the tasks to (see above).
         progress: show a tqdm bar over meshes on stderr.
         desc: label of the progress bar (and of the warning lines).
         mp_context: start method of the worker processes (``"spawn"``, ``"forkserver"``, ``"fork"``).
         timeout: seconds a chunk may run on a worker process before the workers are killed and restarted
-            (None: no limit). Only for ``workers >= 2``: ignored in this process, refused with ``executor``.
-        max_restarts: worker-process restarts allowed per call (then the meshes not labelled yet fail).
+            (None: no limit). For ``workers >= 2`` and ``executor="dask"``: ignored in this process, refused
+            with an ``Executor`` object.
+        max_restarts: worker-process restarts allowed per call (then the meshes not labelled yet fail); on dask,
+            the chunks dask gave up on plus the hung workers killed.
+        scheduler: ``executor="dask"`` only: the scheduler's address (``"tcp://host:8786"``), or None to start
+            a ``LocalCluster`` of ``workers`` worker processes (at least 1) on this machine.
     """
 
     def __init__(self, labeler: ExactLabeler, workers: int = 0, chunk_size: int = 32,
-                 executor: cf.Executor | None = None, progress: bool = False, desc: str = "labeling",
-                 mp_context: str = "spawn", timeout: float | None = None, max_restarts: int = 10):
+                 executor: str | cf.Executor | None = "local", progress: bool = False, desc: str = "labeling",
+                 mp_context: str = "spawn", timeout: float | None = None, max_restarts: int = 10,
+                 scheduler: str | None = None):
         missing = [a for a in ("label", "n_vertices", "n_parts") if not hasattr(labeler, a)]
         if missing:
             raise TypeError(f"LabelPool: labeler is a {type(labeler).__name__} without {', '.join(missing)}; pass an "
@@ -290,16 +323,31 @@ class LabelPool:
             raise ValueError(f"LabelPool: workers={workers!r}; use an int >= 0 (0 or 1 label in this process)")
         if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
             raise ValueError(f"LabelPool: chunk_size={chunk_size!r}; use an int >= 1")
-        if executor is not None and not isinstance(executor, cf.Executor):
-            raise TypeError(f"LabelPool: executor is a {type(executor).__name__}; pass a "
-                            "concurrent.futures.Executor (e.g. dask's Client.get_executor()) or None")
+        if executor is None:
+            executor = "local"
+        if isinstance(executor, str):
+            if executor not in EXECUTORS:
+                raise ValueError(f"LabelPool: executor={executor!r}; use 'local' (this process or local worker "
+                                 "processes), 'dask' (a dask.distributed cluster) or a concurrent.futures.Executor")
+        elif not isinstance(executor, cf.Executor):
+            raise TypeError(f"LabelPool: executor is a {type(executor).__name__}; pass 'local', 'dask' or a "
+                            "concurrent.futures.Executor (e.g. a ThreadPoolExecutor)")
+        if scheduler is not None:
+            if executor != "dask":
+                raise ValueError(f"LabelPool: scheduler={scheduler!r} is only used with executor='dask' "
+                                 f"(executor={executor if isinstance(executor, str) else type(executor).__name__})")
+            if not isinstance(scheduler, str) or not scheduler.strip():
+                raise ValueError(f"LabelPool: scheduler={scheduler!r}; use a dask scheduler address such as "
+                                 "'tcp://host:8786', or None to start a LocalCluster of `workers` processes")
+        if executor == "dask":
+            require_distributed()
         if mp_context not in multiprocessing.get_all_start_methods():
             raise ValueError(f"LabelPool: mp_context={mp_context!r} is not available here; use one of "
                              f"{multiprocessing.get_all_start_methods()}")
         if timeout is not None:
             if isinstance(timeout, bool) or not isinstance(timeout, (int, float, np.number)) or not timeout > 0:
                 raise ValueError(f"LabelPool: timeout={timeout!r}; use a number of seconds > 0, or None")
-            if executor is not None:
+            if not isinstance(executor, str):
                 raise ValueError("LabelPool: timeout needs the pool's own worker processes (it kills them); "
                                  "with a user executor use the executor's own time limits")
         if isinstance(max_restarts, bool) or not isinstance(max_restarts, (int, np.integer)) or max_restarts < 0:
@@ -312,7 +360,10 @@ class LabelPool:
         self.mp_context = mp_context
         self.timeout = None if timeout is None else float(timeout)
         self.max_restarts = int(max_restarts)
-        self._user_executor = executor
+        self.executor = executor if isinstance(executor, str) else "user"
+        self.scheduler = None if scheduler is None else scheduler.strip()
+        self._user_executor = None if isinstance(executor, str) else executor
+        self._dask = None  # pool_dask.DaskSession: the dask client (and LocalCluster) of executor="dask"
         self._own_executor: cf.ProcessPoolExecutor | None = None
         self._finalizer: weakref.finalize | None = None
         self._procs: list = []  # the worker processes of _own_executor (multiprocessing.Process)
@@ -373,9 +424,21 @@ class LabelPool:
         # read after the executor joined its workers (reading earlier races with its waitpid and can miss a code)
         return [p.exitcode for p in procs]
 
+    def _dask_session(self):
+        """The pool's dask client (connected, or a LocalCluster started) with the labeler on every worker."""
+        if self._dask is None:
+            from neuralcol.collision.pool_dask import DaskSession
+
+            self._dask = DaskSession(self.labeler, self.scheduler, self.workers, self.timeout)
+        return self._dask
+
     def close(self) -> None:
-        """Shut down the worker processes this pool started (a user executor is left running)."""
+        """Shut down the worker processes or the dask LocalCluster this pool started (a user executor and a
+        dask cluster given by ``scheduler`` are left running; the pool's labeler is removed from its workers)."""
         self._discard_executor(kill=False)
+        session, self._dask = self._dask, None
+        if session is not None:
+            session.close()
 
     def __enter__(self) -> LabelPool:
         return self
@@ -384,8 +447,12 @@ class LabelPool:
         self.close()
 
     def __repr__(self) -> str:
-        where = (f"executor={type(self._user_executor).__name__}" if self._user_executor is not None
-                 else f"workers={self.workers}")
+        if self._user_executor is not None:
+            where = f"executor={type(self._user_executor).__name__}"
+        elif self.executor == "dask":
+            where = f"executor='dask', scheduler={self.scheduler!r}, workers={self.workers}"
+        else:
+            where = f"workers={self.workers}"
         return f"LabelPool({where}, chunk_size={self.chunk_size}, n_vertices={self.labeler.n_vertices})"
 
     # ------------------------------------------------------------------ labelling
@@ -461,11 +528,16 @@ class LabelPool:
             batch = _Batch(n, bar)
             for i, why in (skip or {}).items():
                 batch.fail(i, why)
-            if self._user_executor is None and self.workers <= 1:
+            if self.executor == "local" and self.workers <= 1:
                 queue = collections.deque(tasks)
                 while queue:
                     task = queue.popleft()
                     queue.extend(batch.settle(task, _label_chunk_with(self.labeler, v[task.idx])))
+            elif self.executor == "dask":
+                from neuralcol.collision.pool_dask import run_dask
+
+                if tasks:
+                    run_dask(self, self._dask_session(), v, tasks, batch)
             else:
                 self._run_executor(v, tasks, batch)
         for i in np.flatnonzero([r is None and i not in batch.failures for i, r in enumerate(batch.results)]):

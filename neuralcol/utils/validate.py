@@ -11,6 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 from neuralcol.errors import UserInputError
 
 METHODS = ("supv", "supv_bd", "active", "active_paper")
+POOL_EXECUTORS = ("local", "dask")  # labeling.pool.executor (neuralcol.collision.pool.EXECUTORS)
 
 
 def _get(cfg, key: str):
@@ -67,6 +68,24 @@ def config_problems(cfg: DictConfig) -> list[str]:
     if _get(cfg, "labeling.pool.timeout") is not None:
         need("labeling.pool.timeout", lambda v: float(v) > 0, "must be > 0 seconds, or null for no limit")
     need("labeling.pool.max_restarts", lambda v: is_int(v) and v >= 0, "must be an integer >= 0")
+    executor = _get(cfg, "labeling.pool.executor")
+    if executor is not None:
+        need("labeling.pool.executor", lambda v: v in POOL_EXECUTORS,
+             "use one of local (this machine's worker processes), dask (a dask.distributed cluster)")
+    scheduler = _get(cfg, "labeling.pool.scheduler")
+    if scheduler is not None:
+        if executor != "dask":
+            problems.append(f"labeling.pool.scheduler={scheduler!r}: only used with labeling.pool.executor=dask "
+                            f"(labeling.pool.executor={executor!r}); set both, or scheduler=null")
+        else:
+            need("labeling.pool.scheduler", lambda v: isinstance(v, str) and v.strip() != "",
+                 "must be a dask scheduler address such as tcp://host:8786, or null for a LocalCluster")
+    if executor == "dask":
+        import importlib.util
+
+        if importlib.util.find_spec("distributed") is None:
+            problems.append("labeling.pool.executor='dask': dask.distributed is not installed; install it with: "
+                            'pip install "dask[distributed]"')
     margin = _get(cfg, "handler.alm.margin")
     margins = _get(cfg, "handler.verify_margins")
     if margins is not None:
