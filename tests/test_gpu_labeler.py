@@ -242,6 +242,10 @@ def test_build_labeler_pool_and_pickle():
         got = pool.label(batch)
     for name in Labels._fields:
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    # asked for worker processes, the pool labels a batched backend in this process, in chunks of its batch
+    with LabelPool(gl, workers=2, chunk_size=4) as pool:
+        assert pool.workers == 0 and pool.chunk_size == gl.max_batch
+        np.testing.assert_array_equal(pool.label(batch).pd, want.pd)
     np.testing.assert_array_equal(gl.subsets(want.pd), ref.subsets(want.pd))
     gl.label_batch(batch[:2])  # device arrays and a BVH exist: they are not pickled, but rebuilt
     clone = pickle.loads(pickle.dumps(gl))

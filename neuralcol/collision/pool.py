@@ -352,6 +352,13 @@ class LabelPool:
                                  "with a user executor use the executor's own time limits")
         if isinstance(max_restarts, bool) or not isinstance(max_restarts, (int, np.integer)) or max_restarts < 0:
             raise ValueError(f"LabelPool: max_restarts={max_restarts!r}; use an int >= 0")
+        if getattr(labeler, "batched", False) and executor == "local":
+            # a batched backend (the GPU labeler) labels whole chunks on its device: one process, large chunks
+            if workers >= 2:
+                log.info("LabelPool: %s labels batches on its device; labeling in this process, not in %d workers",
+                         type(labeler).__name__, workers)
+            workers = 0
+            chunk_size = max(int(chunk_size), int(getattr(labeler, "max_batch", chunk_size)))
         self.labeler = labeler
         self.workers = int(workers)
         self.chunk_size = int(chunk_size)
