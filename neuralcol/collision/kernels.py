@@ -1082,7 +1082,7 @@ def _cone_gap(faces, a, b, axis, rho):
 @njit(cache=True)
 def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, lo_cap, hi_cap, axes, inv, ax_lo,
               ax_hi, cone_axis, cone_rho, scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient,
-              rec_key, rec_int, n_rec):
+              rec_key, rec_int, n_rec, scratch_i, scratch_f):
     """Every near pair (the rest mesh's table) that the reference considers (boxes within cap): counted pairs,
     their crossings, and the clearance terms that can lower a part's clearance. Lowers ``clear`` and raises
     ``floor`` in place.
@@ -1097,14 +1097,17 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
     >= the current clearance leaves every minimum, maximum and count unchanged, so the labels equal the
     reference's bit for bit.
 
+    ``scratch_i`` (2, N) int64 and ``scratch_f`` (N,) float64 (N = number of near pairs) are work space, reused
+    between meshes (allocating them per mesh costs more than the pass on finely subdivided meshes).
+
     Returns:
         n_pairs (counted), rec_key, rec_int, n_rec (crossing records, possibly grown).
     """
     n_faces = faces.shape[0]
     n_parts = clear.shape[0]
-    todo_a = np.empty(near_b.shape[0], dtype=np.int64)
-    todo_i = np.empty(near_b.shape[0], dtype=np.int64)
-    todo_bound = np.empty(near_b.shape[0])
+    todo_a = scratch_i[0]  # preallocated (2, N) int64 and (N,) float64 for N = len(near_b)
+    todo_i = scratch_i[1]
+    todo_bound = scratch_f
     n_todo = 0
     best_bound = np.full(n_parts, np.inf)
     best_k = np.full(n_parts, -1, dtype=np.int64)
@@ -1113,6 +1116,7 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
         p0 = _pt(verts, faces[a, 0])
         p1 = _pt(verts, faces[a, 1])
         p2 = _pt(verts, faces[a, 2])
+        t_all = min(clear.max(), cap)  # no term >= this can lower any clearance (they only fall)
         for idx in range(near_ptr[a], near_ptr[a + 1]):
             b = near_b[idx]
             if not _boxes_overlap(lo_cap, hi_cap, a, b):
@@ -1129,8 +1133,10 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
                 q0 = _pt(verts, faces[b, 0])
                 q1 = _pt(verts, faces[b, 1])
                 q2 = _pt(verts, faces[b, 2])
-                g = max(_axes_gap(axes, inv, ax_lo, ax_hi, a, q0, q1, q2),
-                        _axes_gap(axes, inv, ax_lo, ax_hi, b, p0, p1, p2))
+                g = _axes_gap(axes, inv, ax_lo, ax_hi, a, q0, q1, q2)
+                if (not overlap or g > tau) and (r <= 0.0 or cap * (g * BOUND_SHRINK) / r >= t_all):
+                    continue  # not counted, and its term cannot lower any clearance
+                g = max(g, _axes_gap(axes, inv, ax_lo, ax_hi, b, p0, p1, p2))
                 if not overlap or g > tau:  # not counted; c >= bound (c = cap when the pair touches at rest)
                     bound = cap if r <= 0.0 else cap * (g * BOUND_SHRINK) / r
             if overlap and bound == -np.inf:  # may be counted: evaluate now
@@ -1144,6 +1150,8 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
                         rec_key, rec_int, n_rec = _count_pair(verts, faces, a, b, depth, tau, part, floor, adj_ptr,
                                                               adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)
                 continue
+            if bound >= t_all:
+                continue  # not counted (bound > -inf), and its term cannot lower any clearance
             todo_a[n_todo] = a
             todo_i[n_todo] = idx
             todo_bound[n_todo] = bound

@@ -258,7 +258,7 @@ class ExactLabeler:
         n_near, rec_key, rec_int, n_rec = near_pass(
             v, f, self._near_ptr, self._near_b, self._near_rest, self._near_shared, lo0, hi0, lo_cap, hi_cap, *axes,
             *cones, self.ell, self.tau, self.cap, clear, floor, self.partition, self.adj_ptr, self.adj_idx,
-            self.adj_eid, self.orient, rec_key, rec_int, 0)
+            self.adj_eid, self.orient, rec_key, rec_int, 0, *self._near_scratch())
         # 2. far pairs, one grid: counted pairs among those with overlapping boxes, and the clearance terms of
         #    the pairs closer than the clearance they would have to beat
         n_far, rec_key, rec_int, n_rec = self._far_pass(v, lo0, hi0, lo_cap, hi_cap, axes, clear, floor, rec_key,
@@ -275,6 +275,19 @@ class ExactLabeler:
         return label_mesh(v, self.faces, pairs, self.ell, self.tau, self.cap, self.partition, self.n_parts,
                           self.adj_ptr, self.adj_idx, self.adj_eid, len(self.edges), self.closed, self.orient,
                           self._near_ptr, self._near_b, self._near_rest)
+
+    def _near_scratch(self):
+        """Work space of :func:`~neuralcol.collision.kernels.near_pass`, made once per labeler (not pickled)."""
+        scratch = getattr(self, "_scratch", None)
+        if scratch is None:
+            n = len(self._near_b)
+            scratch = self._scratch = (np.empty((2, n), dtype=np.int64), np.empty(n))
+        return scratch
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state.pop("_scratch", None)
+        return state
 
     def _far_pass(self, v, lo0, hi0, lo_cap, hi_cap, axes, clear, floor, rec_key, rec_int, n_rec):
         """Far pairs (:func:`~neuralcol.collision.kernels.far_pass`), one grid over boxes grown by
