@@ -192,15 +192,23 @@ def plot_part(cfg: DictConfig, state: dict, out: Path, title: str) -> list[Path]
     png = out / "scale_curve.png"
     fig.savefig(png, dpi=110)
     plt.close(fig)
-    lines = ["| n | " + " | ".join(f"{m} accuracy | {m} FNR | {m} min" for m in models) + " |",
+    seeds = sorted({r["seed"] for r in recs})
+    lines = [f"Test accuracy and FNR on {state.get('test_size', 0):,} U(Z) samples (majority class "
+             f"{state.get('majority_accuracy', float('nan')):.4f}); mean ± std over training seeds {seeds} where "
+             "there are several; min: training minutes per run.", "",
+             "| n | " + " | ".join(f"{m} accuracy | {m} FNR | {m} min" for m in models) + " |",
              "| ---: |" + " ---: | ---: | ---: |" * len(models)]
     for n in sizes:
         cells = []
         for m in models:
             acc, fnr = _mean(recs, m, n, "accuracy"), _mean(recs, m, n, "fnr")
             sec = [r["seconds"] for r in recs if r["model"] == m and r["size"] == n]
-            cells += ["-", "-", "-"] if acc is None else [f"{acc[0]:.4f}", f"{fnr[0]:.3f}",
-                                                          f"{np.mean(sec) / 60:.1f}"]
+            if acc is None:
+                cells += ["-", "-", "-"]
+            elif acc[2] > 1:  # mean ± std over the training seeds
+                cells += [f"{acc[0]:.4f} ± {acc[1]:.4f}", f"{fnr[0]:.3f} ± {fnr[1]:.3f}", f"{np.mean(sec) / 60:.1f}"]
+            else:
+                cells += [f"{acc[0]:.4f}", f"{fnr[0]:.3f}", f"{np.mean(sec) / 60:.1f}"]
         lines.append(f"| {n:,} | " + " | ".join(cells) + " |")
     md = out / "scale_curve.md"
     md.write_text("\n".join(lines) + "\n")
