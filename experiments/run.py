@@ -35,6 +35,7 @@ from neuralcol.metrics.reconstruction import relative_vertex_error
 from neuralcol.stages.autoencoder import train_or_load_latent_space
 from neuralcol.stages.detector import load_detector, shared_test_set, train_detector
 from neuralcol.stages.handling import alm_settings, evaluate_handler, export_handling
+from neuralcol.stages.model_size import search_model_size, validate_model_size
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.resume import RunDirLock, find_interrupted_run
 from neuralcol.utils.seeding import seed_everything
@@ -44,6 +45,7 @@ from neuralcol.utils.validate import validate_run_config
 def run(cfg: DictConfig, run_dir: Path) -> dict:
     """Run the pipeline for ``cfg`` and write results into ``run_dir``; returns the metrics dict."""
     validate_run_config(cfg)  # every settings error at once, before any work
+    validate_model_size(cfg)
     seed_everything(cfg.seed if cfg.seed is not None else None)
     t0 = time.perf_counter()
     ds = instantiate(cfg.dataset.source)
@@ -54,6 +56,10 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     feats = dataset_features(ds, cfg.dataset.reference_index, acap_cfg, norm_cfg,
                              cache_dir=Path(cfg.paths.cache_dir) / "features")
     t_encode = time.perf_counter() - t0
+    size_doc = None
+    if cfg.get("model_size") is not None and cfg.model_size.mode == "auto":  # choose the sizes first (issue 17)
+        cfg, size_doc = search_model_size(cfg, run_dir, ds, feats, run, train_or_load_latent_space)
+        seed_everything(cfg.seed if cfg.seed is not None else None)  # as if the sizes had been given
     t0 = time.perf_counter()
     with torch.no_grad():
         recon = feats.acap.decode(feats.features.to(torch.float64)).to(ds.vertices.dtype)
@@ -136,6 +142,9 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "rounds": det["rounds"],
         "handling": handling_metrics,
     }
+    if size_doc is not None:
+        metrics["model_size"] = {k: size_doc[k] for k in ("chosen", "chosen_accuracy", "best_accuracy", "budget",
+                                                            "default", "rule")}
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
 

@@ -17,6 +17,8 @@ latent ``Z_k (B, d)``; its decoder writes only into its sub-domain. ``D(Z_all) =
 
 from __future__ import annotations
 
+import warnings
+
 import torch
 from torch import nn
 
@@ -105,8 +107,10 @@ class Level2Autoencoders(nn.Module):
             idx = torch.nonzero(partition == k).flatten()
             self.register_buffer(f"index_{k}", idx)
             width = max(1, int(idx.numel())) * FEATURE_CHANNELS
-            self.encoders.append(nn.Linear(width, latent_dim))
-            dec = nn.Sequential(nn.Linear(latent_dim, hidden), nn.Tanh(), nn.Linear(hidden, width))
+            with warnings.catch_warnings():  # latent_dim 0 (no level-2 code): torch warns on empty weights
+                warnings.filterwarnings("ignore", message="Initializing zero-element tensors")
+                self.encoders.append(nn.Linear(width, latent_dim))
+                dec = nn.Sequential(nn.Linear(latent_dim, hidden), nn.Tanh(), nn.Linear(hidden, width))
             nn.init.zeros_(dec[-1].weight)
             nn.init.zeros_(dec[-1].bias)
             self.decoders.append(dec)

@@ -53,18 +53,26 @@ def decoder_code_features(space) -> tuple[torch.Tensor, torch.Tensor, str]:
     return l1.comp_in_w.detach().cpu().float(), l1.comp_in_b.detach().cpu().float(), l1.activation
 
 
+def net_widths(net_cfg: dict) -> dict:
+    """The detector's widths ``{"state_dim", "hidden"}``: the configured ones times ``width`` (default 1; the
+    size sweep's multiplier, issue 17), rounded, at least 1."""
+    w = float(net_cfg.get("width", 1.0))
+    return {k: max(1, round(w * int(net_cfg[k]))) for k in ("state_dim", "hidden")}
+
+
 def build_detector(space, det: dict) -> CollisionDetector:
     l2 = (space.dim - space.n_parts) // space.n_parts
     box = (space.box_lo.detach().cpu(), space.box_hi.detach().cpu()) if det["net"]["normalize_inputs"] \
         else (None, None)
     feats = decoder_code_features(space) if det["net"].get("decoder_features", False) else None
-    return CollisionDetector(space.n_parts, l2, state_dim=int(det["net"]["state_dim"]),
-                             hidden=int(det["net"]["hidden"]), box_lo=box[0], box_hi=box[1], code_features=feats)
+    return CollisionDetector(space.n_parts, l2, **net_widths(det["net"]), box_lo=box[0], box_hi=box[1],
+                             code_features=feats)
 
 
 def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, pd_unit: float) -> None:
     blob = {"state": net.state_dict(), "n_components": net.n_components, "level2_dim": net.level2_dim,
-            "net": det["net"], "method": method["name"], "pd_unit": pd_unit,
+            "net": {**det["net"], **net_widths(det["net"]), "width": 1.0},  # widths as built
+            "method": method["name"], "pd_unit": pd_unit,
             "code_features": None if net.feature_activation is None else
             {"hidden": net.n_code_features, "activation": net.feature_activation}}
     tmp = path.with_name(path.name + ".tmp")
@@ -181,7 +189,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
                              "label_seconds": test_label_s, "seconds": test_s,
                              "n_label_failures": test_failures},
                 "pd_unit": pd_unit, "n_parameters": int(sum(p.numel() for p in net.parameters())),
-                "net": {k: det["net"][k] for k in ("state_dim", "hidden")}}
+                "net": {**net_widths(det["net"]), "width": float(det["net"].get("width", 1.0))}}
 
     L.seed_everything(seed, workers=False, verbose=False)
     net = build_detector(space, det)

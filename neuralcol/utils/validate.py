@@ -36,17 +36,18 @@ def config_problems(cfg: DictConfig) -> list[str]:
     for key in ("detector.n_init", "detector.n_aug", "detector.test_size", "detector.epochs",
                 "detector.finetune_epochs", "detector.batch_size", "detector.finetune_batch_size",
                 "detector.newton.max_iter", "handler.batch_size", "autoencoder.level1.epochs",
-                "autoencoder.level2.epochs", "dataset.latent.n_components", "dataset.latent.level2_dim",
+                "autoencoder.level2.epochs", "dataset.latent.n_components",
                 "detector.net.state_dim", "detector.net.hidden"):
         need(key, lambda v: is_int(v) and v >= 1, "must be an integer >= 1")
-    for key in ("detector.max_rounds", "handler.n_inputs", "seed", "autoencoder_seed"):
+    for key in ("detector.max_rounds", "handler.n_inputs", "seed", "autoencoder_seed",
+                "dataset.latent.level2_dim"):  # level2_dim 0: no level 2 (Z_all = Z_0)
         need(key, lambda v: is_int(v) and v >= 0, "must be an integer >= 0")
     if _get(cfg, "method.name") in ("active", "active_paper") and _get(cfg, "method.projected_fraction") == 0.5:
         need("detector.n_aug", lambda v: v % 2 == 0, "must be even for method=active (half of each round's "
              "samples are projected, half uniform)")
     for key in ("detector.lr", "detector.finetune_lr", "detector.newton.eps_z", "detector.newton.max_step",
                 "labeling.labeler.clearance_cap", "labeling.labeler.boundary_eps", "labeling.labeler.cell_factor",
-                "detector.targets.pd_clip"):
+                "detector.targets.pd_clip", "detector.net.width"):
         need(key, lambda v: float(v) > 0, "must be > 0")
     need("labeling.labeler.touch_tol", lambda v: float(v) >= 0, "must be >= 0")
     need("method.projected_fraction", lambda v: 0 <= float(v) <= 1, "must lie in [0, 1]")

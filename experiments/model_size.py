@@ -1,0 +1,57 @@
+"""Apply the model-size rule to a size sweep: ``python -m experiments.model_size SWEEP_DIR [--recon-tol 0.1]
+[--accuracy-tol 0.005]``.
+
+A size sweep is a Hydra multirun over ``dataset.latent.n_components``, ``dataset.latent.level2_dim`` and
+``detector.net.width`` (``experiment=size_<dataset>``). The rule of ``model_size=auto``
+(:mod:`neuralcol.stages.model_size`) picks the smallest latent space within ``recon-tol`` of the best held-out
+reconstruction, then the smallest detector within ``accuracy-tol`` of the best accuracy at that latent space. It
+writes ``SWEEP_DIR/model_size.json`` (read by ``experiments.report`` to mark the chosen point on the Pareto chart)
+and prints every run's sizes and scores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from neuralcol.errors import UserInputError
+from neuralcol.stages.model_size import choose_from_records, run_record
+from neuralcol.utils.cli import report_user_errors
+
+
+def sweep_records(sweep: Path) -> list[dict]:
+    """Records (:func:`~neuralcol.stages.model_size.run_record`) of the finished runs under ``sweep``."""
+    runs = sorted(p.parent for p in sweep.glob("*/metrics.json"))
+    if not runs:
+        raise UserInputError(f"{sweep}: no finished run (no <run>/metrics.json); give the sweep directory of a "
+                             "size sweep (python -m experiments.run -m experiment=size_<dataset>)")
+    return [run_record(json.loads((r / "metrics.json").read_text()), r.name) for r in runs]
+
+
+@report_user_errors
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("sweep", type=Path)
+    ap.add_argument("--recon-tol", type=float, default=0.1, help="relative tolerance on held-out mesh error")
+    ap.add_argument("--accuracy-tol", type=float, default=0.005, help="absolute tolerance on test accuracy")
+    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
+    records = sweep_records(args.sweep)
+    doc = choose_from_records(records, args.recon_tol, args.accuracy_tol)
+    (args.sweep / "model_size.json").write_text(json.dumps(doc, indent=2))
+    print(f"{'run':>12} {'|Z_0|':>5} {'L2':>3} {'width':>5} {'held-out err':>12} {'params':>8} {'accuracy':>8} "
+          f"{'FNR':>6}")
+    for r in doc["detector"]:
+        mark = "  <- chosen" if r["run"] == doc["chosen_run"] else ""
+        err = "n/a" if r["val_error"] is None else f"{r['val_error']:.4f}"
+        print(f"{r['run']:>12} {r['n_components']:>5} {r['level2_dim']:>3} {r['detector_width']:>5g} {err:>12} "
+              f"{r['n_parameters']:>8} {r['accuracy']:>8.4f} {r['fnr']:>6.3f}{mark}")
+    c = doc["chosen"]
+    print(f"chosen: |Z_0| = {c['n_components']}, level 2 = {c['level2_dim']}, detector width x{c['detector_width']:g} "
+          f"(accuracy {doc['chosen_accuracy']:.4f}; best {doc['best_accuracy']:.4f} in {doc['best_run']}) -> "
+          f"{args.sweep / 'model_size.json'}")
+
+
+if __name__ == "__main__":
+    main()

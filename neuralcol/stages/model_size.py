@@ -1,0 +1,215 @@
+"""Stage: choose the latent space and the detector size of a data set (``model_size=auto``, issue 17).
+
+The rule, in two steps, each "the smallest that is nearly as good as the best":
+
+1. **Latent space**: of the candidate sizes (``|Z_0|`` = ``n_components`` x ``level2_dim``), the smallest
+   ``|Z_all| = n_components * (1 + level2_dim)`` whose autoencoder reconstructs the held-out meshes with a
+   mean vertex error within ``recon_tol`` (relative) of the best candidate's. Ties: the smaller error.
+2. **Detector**: at that latent space, of the candidate widths (``detector.net.width`` multiplies
+   ``state_dim`` and ``hidden``), the one with the fewest parameters whose test accuracy at the labeling budget
+   is within ``accuracy_tol`` (absolute) of the best width's. Ties: the higher accuracy.
+
+:func:`choose_latent` and :func:`choose_detector` are the rule on plain records; :func:`search_model_size`
+runs it inside ``experiments.run`` (autoencoders trained or taken from the cache; one ``supv`` sub-run per
+width in ``<run dir>/model_size/``); ``python -m experiments.model_size SWEEP_DIR`` applies it to the runs of
+a size sweep (``experiment=size_<dataset>``). Both write ``model_size.json``:
+``{"chosen": {"n_components", "level2_dim", "detector_width"}, "rule": {...}, "latent": [...],
+"detector": [...]}``.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import json
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+from neuralcol.errors import UserInputError
+
+
+def latent_dim(n_components: int, level2_dim: int) -> int:
+    """Entries of Z_all: ``n_components * (1 + level2_dim)``."""
+    return int(n_components) * (1 + int(level2_dim))
+
+
+def choose_latent(records: list[dict], recon_tol: float) -> dict:
+    """The smallest latent space nearly as good as the best.
+
+    Args:
+        records: one per candidate, with ``n_components``, ``level2_dim`` and ``val_error`` (mean vertex error of
+            the held-out meshes; lower is better).
+        recon_tol: relative tolerance: eligible if ``val_error <= (1 + recon_tol) * best``.
+
+    Returns:
+        the chosen record.
+    """
+    ok = [r for r in records if r.get("val_error") is not None and math.isfinite(r["val_error"])]
+    if not ok:
+        raise ValueError("choose_latent: no candidate has a finite held-out reconstruction error")
+    best = min(r["val_error"] for r in ok)
+    eligible = [r for r in ok if r["val_error"] <= (1.0 + recon_tol) * best]
+    return min(eligible, key=lambda r: (latent_dim(r["n_components"], r["level2_dim"]), r["val_error"]))
+
+
+def choose_detector(records: list[dict], accuracy_tol: float) -> dict:
+    """The smallest detector nearly as accurate as the best.
+
+    Args:
+        records: one per candidate, with ``n_parameters`` and ``accuracy`` (test accuracy at the budget).
+        accuracy_tol: absolute tolerance: eligible if ``accuracy >= best - accuracy_tol``.
+
+    Returns:
+        the chosen record.
+    """
+    ok = [r for r in records if r.get("accuracy") is not None and math.isfinite(r["accuracy"])]
+    if not ok:
+        raise ValueError("choose_detector: no candidate has a finite test accuracy")
+    best = max(r["accuracy"] for r in ok)
+    eligible = [r for r in ok if r["accuracy"] >= best - accuracy_tol - 1e-12]
+    return min(eligible, key=lambda r: (r["n_parameters"], -r["accuracy"]))
+
+
+def run_record(metrics: dict, name: str) -> dict:
+    """The sizes and scores of one finished run (its ``metrics.json``) as a record of the rule."""
+    k = int(metrics["latent"]["n_parts"])
+    det, last = metrics["detector"], metrics["rounds"][-1]
+    h = metrics.get("handling") or {}
+    return {"run": name, "n_components": k, "level2_dim": (int(metrics["latent"]["dim"]) - k) // k,
+            "latent_dim": int(metrics["latent"]["dim"]),
+            "detector_width": float(det.get("net", {}).get("width", 1.0)),
+            "val_error": metrics["autoencoder"].get("val_mean_vertex_error"),
+            "autoencoder_parameters": metrics["autoencoder"].get("n_parameters"),
+            "n_parameters": int(det["n_parameters"]), "accuracy": float(last["accuracy"]),
+            "fnr": float(last["fnr"]), "dataset_size": int(last["dataset_size"]),
+            "inference_us": det.get("inference_us"), "handler_success": h.get("success_rate"),
+            "handler_seconds_per_mesh": h.get("seconds_per_mesh"),
+            "seconds": float(sum(r.get("label_seconds", 0) + r.get("train_seconds", 0) for r in metrics["rounds"]))}
+
+
+def decide(latents: list[dict], records: list[dict], recon_tol: float, accuracy_tol: float) -> dict:
+    """The rule (module docstring) on latent records and detector records (:func:`run_record`; only those at the
+    chosen latent space compete): ``model_size.json``'s content."""
+    lat = choose_latent(latents, recon_tol)
+    same = [r for r in records if (r["n_components"], r["level2_dim"]) == (lat["n_components"], lat["level2_dim"])]
+    if not same:
+        raise ValueError(f"no detector was trained at the chosen latent space |Z_0| = {lat['n_components']}, "
+                         f"level 2 = {lat['level2_dim']}")
+    det = choose_detector(same, accuracy_tol)
+    best = max(records, key=lambda r: r["accuracy"])
+    return {"chosen": {"n_components": lat["n_components"], "level2_dim": lat["level2_dim"],
+                       "detector_width": det["detector_width"]},
+            "chosen_run": det["run"], "chosen_accuracy": det["accuracy"], "chosen_n_parameters": det["n_parameters"],
+            "best_run": best["run"], "best_accuracy": best["accuracy"],
+            "rule": {"recon_tol": recon_tol, "accuracy_tol": accuracy_tol},
+            "latent": sorted(latents, key=lambda r: (latent_dim(r["n_components"], r["level2_dim"]), r["val_error"])),
+            "detector": sorted(records, key=lambda r: (r["latent_dim"], r["n_parameters"]))}
+
+
+def choose_from_records(records: list[dict], recon_tol: float, accuracy_tol: float) -> dict:
+    """The rule on the runs of a full size sweep (records of :func:`run_record`; runs of one latent space share
+    its autoencoder, hence its reconstruction error)."""
+    latents = {}
+    for r in records:
+        latents.setdefault((r["n_components"], r["level2_dim"]), r)
+    return decide(list(latents.values()), records, recon_tol, accuracy_tol)
+
+
+def _set(cfg: DictConfig, dotted: dict) -> DictConfig:
+    out = copy.deepcopy(cfg)
+    with open_dict(out):
+        for key, value in dotted.items():
+            OmegaConf.update(out, key, value, merge=False)
+    return out
+
+
+def search_model_size(cfg: DictConfig, run_dir: Path, ds, feats, run_fn: Callable[[DictConfig, Path], dict],
+                      train_latent: Callable) -> tuple[DictConfig, dict]:
+    """``model_size=auto``: choose the sizes for ``cfg``'s data set, write ``<run_dir>/model_size/model_size.json``
+    and return ``cfg`` with the chosen sizes (and ``model_size.mode=fixed``).
+
+    Args:
+        cfg: the run's config (``cfg.model_size``: candidate lists, tolerances, budget, method).
+        run_dir: the run directory; the evidence goes to ``run_dir/model_size``.
+        ds, feats: the data set and its ACAP features.
+        run_fn: ``experiments.run.run`` (one ``supv`` sub-run per detector width, at the chosen latent space).
+        train_latent: ``train_or_load_latent_space`` (autoencoders are cached: a second search is cheap).
+    """
+    ms = cfg.model_size
+    out_dir = Path(run_dir) / "model_size"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "model_size.json"
+    if path.is_file():  # a resumed run keeps its choice
+        doc = json.loads(path.read_text())
+    else:
+        t0 = time.perf_counter()
+        latents = []
+        for k, l2 in itertools.product(list(ms.n_components), list(ms.level2_dim)):
+            lat_cfg = _set(cfg, {"dataset.latent.n_components": int(k), "dataset.latent.level2_dim": int(l2)})
+            _, rep, cached = train_latent(ds, feats, lat_cfg.autoencoder, lat_cfg.dataset.latent,
+                                          int(cfg.autoencoder_seed), Path(cfg.paths.cache_dir))
+            latents.append({"n_components": int(k), "level2_dim": int(l2), "latent_dim": latent_dim(k, l2),
+                            "val_error": rep.get("val_mean_vertex_error"),
+                            "train_error": rep.get("train_mean_vertex_error"),
+                            "autoencoder_parameters": rep.get("n_parameters"), "from_cache": cached,
+                            "train_seconds": rep.get("train_seconds")})
+            print(f"model_size: |Z_0| = {k}, level 2 = {l2}: held-out vertex error {rep.get('val_mean_vertex_error')}"
+                  f"{' (cached)' if cached else ''}", flush=True)
+        lat = choose_latent(latents, float(ms.recon_tol))
+        budget = ms.budget if ms.budget is not None else \
+            int(cfg.detector.n_init) + int(cfg.detector.max_rounds) * int(cfg.detector.n_aug)
+        records = []
+        for w in list(ms.width):
+            sub = _set(cfg, {"dataset.latent.n_components": lat["n_components"],
+                             "dataset.latent.level2_dim": lat["level2_dim"], "detector.net.width": float(w),
+                             "detector.n_init": int(budget), "detector.max_rounds": 0,
+                             "method": OmegaConf.to_container(cfg.model_size.method, resolve=True),
+                             "handler.verify_margins": [], "handler.eval_every_round": False,
+                             "model_size.mode": "fixed"})
+            name = f"width_{float(w):g}"
+            sub_dir = out_dir / name
+            done = sub_dir / "metrics.json"
+            metrics = json.loads(done.read_text()) if done.is_file() else run_fn(sub, sub_dir)
+            records.append(run_record(metrics, name))
+            print(f"model_size: detector width x{float(w):g}: {records[-1]['n_parameters']} parameters, "
+                  f"accuracy {records[-1]['accuracy']:.4f} at {budget} samples", flush=True)
+        doc = {**decide(latents, records, float(ms.recon_tol), float(ms.accuracy_tol)), "budget": int(budget),
+               "default": {"n_components": int(cfg.dataset.latent.n_components),
+                           "level2_dim": int(cfg.dataset.latent.level2_dim),
+                           "detector_width": float(cfg.detector.net.width)},
+               "seconds": time.perf_counter() - t0}
+        path.write_text(json.dumps(doc, indent=2))
+    c = doc["chosen"]
+    print(f"model_size: chosen |Z_0| = {c['n_components']}, level 2 = {c['level2_dim']}, detector width "
+          f"x{c['detector_width']:g} (evidence: {path})", flush=True)
+    return _set(cfg, {"dataset.latent.n_components": c["n_components"], "dataset.latent.level2_dim": c["level2_dim"],
+                      "detector.net.width": c["detector_width"], "model_size.mode": "fixed"}), doc
+
+
+def validate_model_size(cfg: DictConfig) -> None:
+    """Clear errors for the ``model_size`` settings (called before any work)."""
+    ms = cfg.get("model_size")
+    if ms is None:
+        return
+    if ms.mode not in ("fixed", "auto"):
+        raise UserInputError(f"model_size.mode={ms.mode!r}: use fixed (the data set's sizes) or auto "
+                             "(model_size=auto: search them first)")
+    if ms.mode == "fixed":
+        return
+    for key, low in (("n_components", 1), ("level2_dim", 0)):
+        vals = list(ms[key])
+        if not vals or any(not isinstance(v, int) or v < low for v in vals):
+            raise UserInputError(f"model_size.{key}={vals}: a non-empty list of integers >= {low}")
+    widths = list(ms.width)
+    if not widths or any(float(w) <= 0 for w in widths):
+        raise UserInputError(f"model_size.width={widths}: a non-empty list of multipliers > 0")
+    for key in ("recon_tol", "accuracy_tol"):
+        if float(ms[key]) < 0:
+            raise UserInputError(f"model_size.{key}={ms[key]}: must be >= 0")
+    if ms.budget is not None and int(ms.budget) < 10:
+        raise UserInputError(f"model_size.budget={ms.budget}: labeled samples per detector candidate, >= 10 "
+                             "(null: the run's final |D_c|)")

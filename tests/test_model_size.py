@@ -1,0 +1,93 @@
+"""model_size=auto (issue 17): the choice rule on hand-made records, and a tiny search end to end."""
+
+import json
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from neuralcol.errors import UserInputError
+from neuralcol.stages.model_size import choose_detector, choose_from_records, choose_latent, validate_model_size
+
+CONF = str(Path(__file__).resolve().parents[1] / "conf")
+
+
+def test_choose_latent_smallest_within_relative_tolerance():
+    recs = [{"n_components": 16, "level2_dim": 3, "val_error": 0.010},   # best, dim 64
+            {"n_components": 8, "level2_dim": 3, "val_error": 0.0109},   # dim 32, within 10 %
+            {"n_components": 8, "level2_dim": 1, "val_error": 0.0115},   # dim 16, 15 % worse: out
+            {"n_components": 4, "level2_dim": 6, "val_error": 0.0105}]   # dim 28, within: the smallest eligible
+    assert choose_latent(recs, 0.1)["n_components"] == 4
+    assert choose_latent(recs, 0.0)["n_components"] == 16      # no tolerance: the best
+    assert choose_latent(recs, 0.2)["level2_dim"] == 1         # 8 x (1 + 1) = 16 entries now eligible
+    with pytest.raises(ValueError, match="held-out"):
+        choose_latent([{"n_components": 2, "level2_dim": 0, "val_error": None}], 0.1)
+
+
+def test_choose_detector_fewest_parameters_within_absolute_tolerance():
+    recs = [{"n_parameters": 800, "accuracy": 0.850}, {"n_parameters": 3000, "accuracy": 0.861},
+            {"n_parameters": 12000, "accuracy": 0.864}, {"n_parameters": 48000, "accuracy": 0.858}]
+    assert choose_detector(recs, 0.005)["n_parameters"] == 3000   # 0.861 >= 0.864 - 0.005; 800 is 1.4 points off
+    assert choose_detector(recs, 0.0)["n_parameters"] == 12000
+    assert choose_detector(recs, 0.02)["n_parameters"] == 800
+
+
+def test_choose_from_records_compares_detectors_at_the_chosen_latent_only():
+    def rec(run, k, l2, err, params, acc):
+        return {"run": run, "n_components": k, "level2_dim": l2, "latent_dim": k * (1 + l2), "val_error": err,
+                "n_parameters": params, "accuracy": acc, "detector_width": params / 1000}
+    recs = [rec("a", 8, 3, 0.010, 1000, 0.80), rec("b", 8, 3, 0.010, 4000, 0.81),
+            rec("c", 4, 3, 0.0105, 1000, 0.86), rec("d", 4, 3, 0.0105, 4000, 0.862),
+            rec("e", 2, 0, 0.05, 500, 0.90)]   # most accurate, but its autoencoder is 5x worse: never chosen
+    doc = choose_from_records(recs, 0.1, 0.005)
+    assert doc["chosen"] == {"n_components": 4, "level2_dim": 3, "detector_width": 1.0}
+    assert doc["chosen_run"] == "c" and doc["best_run"] == "e"
+
+
+def _cfg(tmp_path, *extra):
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        return compose(config_name="config", overrides=[
+            "dataset=proc_hand", "dataset.source.n_poses=24", f"paths.cache_dir={tmp_path}/cache",
+            "autoencoder=tiny", "detector=tiny", "labeling.pool.workers=0", "labeling.pool.progress=false",
+            "handler.n_inputs=4", "handler.verify_margins=[]", "n_example_meshes=0", *extra])
+
+
+def test_validate_model_size(tmp_path):
+    validate_model_size(_cfg(tmp_path))  # fixed: nothing to check
+    for bad, match in (("model_size.width=[]", "model_size.width"), ("model_size.level2_dim=[-1]", "level2_dim"),
+                       ("model_size.accuracy_tol=-1", "accuracy_tol")):
+        with pytest.raises(UserInputError, match=match):
+            validate_model_size(_cfg(tmp_path, "model_size=auto", bad))
+
+
+def test_auto_search_end_to_end(tmp_path, capsys):
+    from experiments.model_size import main as model_size_main
+    from experiments.run import run
+
+    cfg = _cfg(tmp_path, "model_size=auto", "model_size.n_components=[2,4]", "model_size.level2_dim=[0,1]",
+               "model_size.width=[0.5,1.0]", "model_size.budget=80", "model_size.recon_tol=0.5",
+               "detector.max_rounds=0")
+    metrics = run(cfg, tmp_path / "run")
+    doc = json.loads((tmp_path / "run" / "model_size" / "model_size.json").read_text())
+    assert len(doc["latent"]) == 4 and len(doc["detector"]) == 2 and doc["budget"] == 80
+    c = doc["chosen"]
+    assert c["n_components"] in (2, 4) and c["level2_dim"] in (0, 1) and c["detector_width"] in (0.5, 1.0)
+    # the rule, checked on the recorded evidence by an independent computation
+    best_err = min(r["val_error"] for r in doc["latent"])
+    eligible = [r for r in doc["latent"] if r["val_error"] <= 1.5 * best_err]
+    assert c["n_components"] * (1 + c["level2_dim"]) == min(r["n_components"] * (1 + r["level2_dim"])
+                                                            for r in eligible)
+    best_acc = max(r["accuracy"] for r in doc["detector"])
+    chosen = next(r for r in doc["detector"] if r["detector_width"] == c["detector_width"])
+    assert chosen["accuracy"] >= best_acc - 0.005
+    # the run went on with the chosen sizes
+    assert metrics["model_size"]["chosen"] == c
+    assert metrics["latent"]["n_parts"] == c["n_components"]
+    assert metrics["latent"]["dim"] == c["n_components"] * (1 + c["level2_dim"])
+    assert metrics["detector"]["net"]["width"] == c["detector_width"]
+    # the sub-runs are a sweep directory: the CLI applies the same rule to them
+    capsys.readouterr()
+    model_size_main([str(tmp_path / "run" / "model_size"), "--recon-tol", "0.5"])
+    assert "chosen:" in capsys.readouterr().out
+    again = json.loads((tmp_path / "run" / "model_size" / "model_size.json").read_text())
+    assert again["chosen"]["detector_width"] == c["detector_width"]
