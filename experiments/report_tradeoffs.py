@@ -255,10 +255,12 @@ def failure_markdown(groups: dict, method_order) -> list[str]:
     return lines
 
 
-def pareto_markdown(points: list[dict], chosen_path: Path | None) -> list[str]:
+def pareto_markdown(points: list[dict], chosen_path: Path | None, method_order) -> list[str]:
+    """Per data set a table of the configurations, cheapest first (then in method order)."""
     lines = []
     for ds in sorted({p["dataset"] for p in points}):
-        pts = [p for p in points if p["dataset"] == ds]
+        pts = sorted((p for p in points if p["dataset"] == ds),
+                     key=lambda p: (p["n_parameters"] or 0, method_order(p["method"])))
         lines += [f"### {ds}: accuracy against detector size and inference time (mean ± std over seeds)", "",
                   "Configuration: K sub-domains, L level-2 size, detector state / hidden width. Inference: CPU, "
                   "µs per sample of the final detector's forward pass (median of 5 after a warm-up). Front: on the "
@@ -452,7 +454,7 @@ def write_tradeoffs(runs: list[dict], dirs: list[Path], out: Path, parameters, p
     lines = ["## Size, cost and failures (pareto.png, cost.png, failures.png)", ""]
     if chosen_path is not None:
         lines += [f"Chosen configuration ({chosen_path}): {json.dumps(chosen)}.", ""]
-    lines += pareto_markdown(points, chosen_path) + failure_markdown(groups, method_order)
+    lines += pareto_markdown(points, chosen_path, method_order) + failure_markdown(groups, method_order)
     lines += [f"Left out: {n}" for n in notes] + ([""] if notes else [])
     numbers = {"pareto": points, "failures": {
         f"{ds}/{label}": {m: {"mean": mean_std(v[0])[0].tolist(), "std": mean_std(v[0])[1].tolist(),

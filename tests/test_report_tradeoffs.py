@@ -81,16 +81,16 @@ def test_pareto_cost_and_failures_from_a_hand_made_sweep(sweep, tmp_path, capsys
     for chart in ("pareto.png", "cost.png", "failures.png"):
         assert (out / chart).stat().st_size > 10_000, chart
     text = (out / "report.md").read_text()
-    # Pareto: one row per configuration and method; the small active (6/8) and the large active (7/8) are on
-    # the parameter front, the large supv (as accurate as the small active, 4x the parameters) is not; the
-    # old supv run has no inference time
+    # Pareto: one row per configuration and method, cheapest first; the small active (6/8) and the large active
+    # (7/8) are on the parameter front, the large supv (as accurate as the small active, 4x the parameters) is
+    # not; the old supv run has no inference time
     pareto = _table(text, "toy: accuracy against detector size")
     assert [(r[0], r[1], r[2], r[3]) for r in pareto] == [
-        ("K2 L1 8/16", "active", "2", "100"), ("K2 L1 16/32", "active", "1", "400"),
-        ("K2 L1 16/32", "supv", "1", "400")]
-    assert [r[4] for r in pareto] == ["1.20 ± 0.28", "3.00", "—"]
-    assert [r[6] for r in pareto] == ["0.750 ± 0.000", "0.875", "0.750"]
-    assert [(r[7], r[8], r[9]) for r in pareto] == [("yes", "yes", "**chosen**"), ("yes", "yes", ""), ("", "", "")]
+        ("K2 L1 8/16", "active", "2", "100"), ("K2 L1 16/32", "supv", "1", "400"),
+        ("K2 L1 16/32", "active", "1", "400")]
+    assert [r[4] for r in pareto] == ["1.20 ± 0.28", "—", "3.00"]
+    assert [r[6] for r in pareto] == ["0.750 ± 0.000", "0.750", "0.875"]
+    assert [(r[7], r[8], r[9]) for r in pareto] == [("yes", "yes", "**chosen**"), ("", "", ""), ("yes", "yes", "")]
     # failures: one row per method and PD bin; the rates by hand (the two seeds of the small configuration
     # miss rows 1 and 4, and rows 4 and 6)
     fails = _table(text, "toy: where each method fails")
@@ -114,7 +114,8 @@ def test_pareto_cost_and_failures_from_a_hand_made_sweep(sweep, tmp_path, capsys
     err = capsys.readouterr().err
     assert err.count("left out: ") == 2 and "1 of 4 runs have no test_predictions.npz" in err
     numbers = json.loads((out / "report.json").read_text())
-    assert [p["chosen"] for p in numbers["pareto"]] == [True, False, False]
+    assert {(p["label"], p["method"]): p["chosen"] for p in numbers["pareto"]} == {
+        ("K2 L1 8/16", "active"): True, ("K2 L1 16/32", "active"): False, ("K2 L1 16/32", "supv"): False}
 
 
 def test_without_model_size_json_nothing_is_marked_and_a_bad_one_is_named(sweep, tmp_path):
