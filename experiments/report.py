@@ -18,6 +18,11 @@ or any mix), groups the runs by data set and method (seeds are pooled: mean ± s
 * ``projection.png`` and a table in ``report.md`` (active runs): where the projected samples of each round
   landed: share within eps and 2 eps of the true boundary, next to the round's uniform samples, and how far
   each latent level moved (docs/diagnosis.md);
+* ``pareto.png``, ``cost.png``, ``failures.png`` and their tables (:mod:`experiments.report_tradeoffs`): accuracy
+  against detector size and CPU inference time with the Pareto front (and the choice of a ``model_size.json``
+  in a given directory marked), accuracy against cumulative seconds per method, and where each method fails:
+  detector accuracy by exact-PD bin and recall by sub-domain of the test rows, handler success by PD bin of its
+  inputs, mean ± std over seeds;
 * ``report.json``: the aggregated numbers.
 """
 
@@ -80,6 +85,12 @@ def detector_parameters(run: dict) -> int | None:
         net, _ = load_detector(Path(run["_path"]) / "detector.pt")
         n = int(sum(p.numel() for p in net.parameters()))
     return n
+
+
+def method_order(name: str) -> tuple[int, str]:
+    """Sort key of a method name, or of a label that starts with one (``"active (K8 L3 64/128)"``)."""
+    m = name.split(" (")[0]
+    return (METHOD_ORDER.index(m) if m in METHOD_ORDER else len(METHOD_ORDER), name)
 
 
 def _methods(names) -> list[str]:
@@ -506,6 +517,12 @@ def main(argv: list[str] | None = None) -> None:
     out = args.out or args.dirs[0]
     out.mkdir(parents=True, exist_ok=True)
     text = markdown(runs, agg, rows, bench)
+    from experiments.report_tradeoffs import write_tradeoffs
+
+    priced = {ds: label_cost_per_sample([r for r in runs if r["dataset"]["name"] == ds])[0]
+              for ds in {r["dataset"]["name"] for r in runs}}
+    trade_lines, notes, trade = write_tradeoffs(runs, args.dirs, out, detector_parameters, priced, method_order)
+    text += "\n" + "\n".join(trade_lines)
     (out / "report.md").write_text(text)
     with open(out / "table3.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -513,8 +530,8 @@ def main(argv: list[str] | None = None) -> None:
         for r in rows:
             w.writerow({k: (json.dumps(v) if isinstance(v, list) else v) for k, v in r.items()})
     plain = {ds: {m: {str(s): dict(c) for s, c in sizes.items()} for m, sizes in ms.items()} for ds, ms in agg.items()}
-    (out / "report.json").write_text(json.dumps({"table3": rows, "rounds": plain}, indent=2))
-    charts = ["accuracy.png", "fnr.png"]
+    (out / "report.json").write_text(json.dumps({"table3": rows, "rounds": plain, **trade}, indent=2))
+    charts = ["accuracy.png", "fnr.png", "pareto.png", "cost.png", "failures.png"]
     plot(agg, "accuracy", out / "accuracy.png")
     plot(agg, "fnr", out / "fnr.png")
     if plot(agg, "handling_success", out / "handling.png"):
@@ -530,6 +547,8 @@ def main(argv: list[str] | None = None) -> None:
         plot_diagnosis({"projection": proj}, out, f"{', '.join(names)}: projected samples per round")
         charts.append("projection.png")
     print(text)
+    for note in notes:
+        print(f"left out: {note}", file=sys.stderr)
     print(f"{len(runs)} runs; wrote {out / 'report.md'}, table3.csv, report.json, {', '.join(charts)}",
           file=sys.stderr)
 

@@ -98,7 +98,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         # inputs of the collision handler: the first colliding rows of the shared test set
         test, _, _ = shared_test_set(oracle, cfg.detector, ae_report["cache_key"], cfg.paths.cache_dir)
         pick = np.flatnonzero(test.pd > 0)[: int(cfg.handler.n_inputs)]
-        z_user, pd_user = torch.as_tensor(test.z[pick]), test.pd[pick]
+        z_user, pd_user, pd_sub_user = torch.as_tensor(test.z[pick]), test.pd[pick], test.pd_sub[pick]
 
         def handling(net):
             # per round the detector alone (paper Fig. 5); the verified variant is for the final detector
@@ -116,7 +116,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
                                                         int(cfg.handler.batch_size), list(cfg.handler.verify_margins))
     if handling_metrics is not None:
         export_handling(run_dir / "handling", arrays, space, sample_labeler, int(cfg.handler.n_examples),
-                        title=f"{cfg.dataset.name}, {cfg.method.name}")
+                        title=f"{cfg.dataset.name}, {cfg.method.name}", pd_sub_before=pd_sub_user)
         for key in ("success_rate", "resolved_rate", "mean_pd_reduction", "mean_embedding_diff"):
             logger.experiment.add_scalar(f"handling/{key}", handling_metrics[key])
     logger.finalize("success")

@@ -163,6 +163,17 @@ def test_active_grows_dc_by_exactly_the_labeled_samples(tmp_path):
     assert saved["finished"] and saved["rounds"] == json.loads(json.dumps(rounds))
     net, meta = load_detector(tmp_path / "run" / "detector.pt")
     assert meta["method"] == "active" and net.latent_dim == D
+    # the final detector on the test set, next to the test rows' exact labels (the report's failure breakdown)
+    with np.load(tmp_path / "run" / "test_predictions.npz") as f:
+        pred = dict(f)
+    assert sorted(pred) == ["collides", "logit", "pd", "pd_sub", "prob"]
+    assert pred["prob"].dtype == np.float32 and pred["pd_sub"].shape == (500, K) and pred["collides"].dtype == bool
+    np.testing.assert_array_equal(pred["collides"], pred["pd"] > 0)
+    assert detection_metrics(pred["logit"] > 0, pred["collides"])["accuracy"] == rounds[-1]["accuracy"]
+    np.testing.assert_allclose(pred["prob"], 1 / (1 + np.exp(-pred["logit"].astype(np.float64))), atol=1e-6)
+    timing = out["detector"]["inference_us"]
+    assert timing["batch_1"] > 0 and timing["batch_4096"] > 0 and timing["batch_4096"] < timing["batch_1"]
+    assert saved["summary"]["inference_us"] == timing
 
 
 def test_projected_samples_are_closer_to_the_true_boundary_than_uniform_ones(tmp_path):

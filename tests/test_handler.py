@@ -183,3 +183,14 @@ def test_pd_reduction_metrics_by_hand():
     assert m["mean_embedding_diff"] == pytest.approx((5.0 + 1.0) / 2)
     assert m["mean_pd_reduction_all"] == pytest.approx((1.0 + 0.5 - 1.0) / 3)
     np.testing.assert_array_equal(arr["success"], [True, True, False, False])
+    # the per-input file the report bins by input PD: the same success criterion, the inputs' PD per sub-domain
+    from neuralcol.stages.handling import per_input_results
+
+    pd_sub = np.array([[1.0, 0.2], [0.1, 2.0], [1.0, 0.0], [0.5, 4.0]])
+    per = per_input_results({"pd_before": pd_before, "pd_after": pd_after, **arr}, pd_sub)
+    assert sorted(per) == ["pd_after", "pd_before", "pd_sub_before", "success"]
+    np.testing.assert_array_equal(per["success"], arr["success"])
+    np.testing.assert_array_equal(per["pd_after"], pd_after)
+    assert "pd_sub_before" not in per_input_results({"pd_before": pd_before, "pd_after": pd_after, **arr})
+    with pytest.raises(ValueError, match="pd_sub_before"):
+        per_input_results({"pd_before": pd_before, "pd_after": pd_after, **arr}, pd_sub[:3])

@@ -57,6 +57,18 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
         assert key in h and key in h["verified"]
     assert h["n"] > 0 and h["verified"]["resolved_rate"] >= h["resolved_rate"]
     assert (tmp_path / "run" / "handling" / "reduction_vs_difference.png").is_file()
+    # the per-run data of the report's cost and failure charts
+    import numpy as np
+
+    from neuralcol.metrics.detection import detection_metrics
+
+    with np.load(tmp_path / "run" / "test_predictions.npz") as f:
+        assert f["prob"].shape == (200,) and f["pd_sub"].shape == (200, 8) and f["collides"].dtype == bool
+        assert detection_metrics(f["logit"] > 0, f["collides"])["accuracy"] == saved["rounds"][-1]["accuracy"]
+    assert 0 < saved["detector"]["inference_us"]["batch_4096"] < saved["detector"]["inference_us"]["batch_1"]
+    with np.load(tmp_path / "run" / "handling" / "per_input.npz") as f:
+        assert f["pd_before"].shape == (h["n"],) and f["pd_sub_before"].shape == (h["n"], 8)
+        assert (f["pd_before"] > 0).all() and f["success"].mean() == h["success_rate"]
     # the users' command on the finished run: a mesh in, the resolved mesh out, exact PD printed
     (tmp_path / "run" / ".hydra").mkdir()
     OmegaConf.save(cfg, tmp_path / "run" / ".hydra" / "config.yaml")
@@ -117,6 +129,7 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     assert sum(not m["autoencoder"]["from_cache"] for m in metrics) == 1
     assert len(list((tmp_path / "cache" / "collision").glob("*/test_s*.h5"))) == 1
     assert all(r.get("handling") for m in metrics for r in m["rounds"]), "handling after every round"
+    (sweep / "model_size.json").write_text(json.dumps({"chosen": {"method": "active", "state_dim": 16, "hidden": 32}}))
     proc = subprocess.run([sys.executable, "-m", "experiments.report", str(sweep)], cwd=ROOT, capture_output=True,
                           text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -124,6 +137,33 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     assert "Table 3 layout" in text and "equivalent supv_bd size" in text and "detector parameters" in text
     rows = list(__import__("csv").DictReader(open(sweep / "table3.csv")))
     assert [r["method"] for r in rows] == ["supv_bd", "active"] and rows[0]["n_seeds"] == "2"
-    for chart in ("accuracy.png", "fnr.png", "handling.png", "speed.png", "stability.png", "projection.png"):
+    for chart in ("accuracy.png", "fnr.png", "handling.png", "speed.png", "stability.png", "projection.png",
+                  "pareto.png", "cost.png", "failures.png"):
         assert (sweep / chart).stat().st_size > 10_000, chart
     assert "where the acquired samples landed (mean over 2 active runs)" in text
+    assert "left out" not in proc.stderr, "every run wrote the files of the cost and failure charts"
+    # Pareto table: one configuration (the tiny sizes), both methods over two seeds, the chosen one marked
+    pareto = [line for line in text.splitlines() if line.startswith("| K8 L3 16/32 |")]
+    assert [line.split("|")[2:4] for line in pareto] == [[" supv_bd ", " 2 "], [" active ", " 2 "]]
+    assert "**chosen**" in pareto[1] and "**chosen**" not in pareto[0]
+    # failures: five PD bins per method; the bins add up to each method's final accuracy and handler success
+    import numpy as np
+
+    from neuralcol.metrics.breakdown import PD_BIN_NAMES
+
+    fails = text.split("where each method fails")[1].split("recall by the deepest")[0]
+    for method in ("supv_bd", "active"):
+        assert [line.split("|")[2].strip() for line in fails.splitlines() if line.startswith(f"| {method} |")] == \
+            list(PD_BIN_NAMES)
+    report = json.loads((sweep / "report.json").read_text())
+    for method in ("supv_bd", "active"):
+        f = report["failures"][f"scape/{method}"]
+        final = [m for m in metrics if m["detector"]["method"] == method]
+        count, rate = np.array(f["accuracy"]["count"]), np.array(f["accuracy"]["mean"])
+        assert count.sum() == 200 and len(f["recall"]["count"]) == 8
+        np.testing.assert_allclose((np.nan_to_num(rate) * count).sum() / 200,
+                                   np.mean([m["rounds"][-1]["accuracy"] for m in final]), atol=1e-9)
+        count, rate = np.array(f["handler"]["count"]), np.array(f["handler"]["mean"])
+        assert count.sum() == 8 and count[:2].sum() == 0, "handler inputs all self-penetrate"
+        np.testing.assert_allclose((np.nan_to_num(rate) * count).sum() / 8,
+                                   np.mean([m["handling"]["success_rate"] for m in final]), atol=1e-9)

@@ -4,8 +4,9 @@ Inputs: the latent space and an exact oracle. Shared caches under ``<cache_dir>/
 latent space + labeler settings): the test set of uniform samples (one for every method and seed) and each
 seed's pool of labeled uniform samples. Per run, in the run directory: ``dc.h5`` (D_c),
 ``checkpoints/detector.ckpt`` (the training state after the last finished round, for resuming),
-``detector_rounds.json`` (the round records, rewritten after every round) and ``detector.pt`` (the final
-detector). See ``docs/detector.md``.
+``detector_rounds.json`` (the round records, rewritten after every round), ``detector.pt`` (the final
+detector) and ``test_predictions.npz`` (the final detector on the test set, :func:`predict_test_set`). See
+``docs/detector.md``.
 """
 
 from __future__ import annotations
@@ -98,6 +99,65 @@ def evaluate_on_test(module: DetectorLitModule, test: CollisionRows) -> dict:
     """Accuracy, FNR, FPR, ... of the detector (logit > 0 = collides) on the test rows."""
     logits = module.predict_logits(torch.as_tensor(test.z))
     return detection_metrics(logits.numpy() > 0, np.asarray(test.collides, bool))
+
+
+def predict_test_set(net: CollisionDetector, test: CollisionRows, batch: int = 4096) -> dict[str, np.ndarray]:
+    """The detector's output on the test rows next to their exact labels (``test_predictions.npz``).
+
+    Args:
+        net: the detector (evaluated on its device in eval mode without gradients, then left as it was).
+        test: the N test rows, K sub-domains.
+        batch: rows evaluated together.
+
+    Returns:
+        prob (N,) float32 collision probability, logit (N,) float32 (the metrics' prediction is logit > 0),
+        pd (N,) float32, pd_sub (N, K) float32, collides (N,) bool.
+    """
+    was_training = net.training
+    net.eval()
+    z = torch.as_tensor(np.asarray(test.z, np.float32), device=next(net.parameters()).device)
+    with torch.no_grad():
+        logit = torch.cat([net(c).logit.cpu() for c in z.split(batch)]) if len(z) else torch.zeros(0)
+    net.train(was_training)
+    return {"prob": torch.sigmoid(logit).numpy().astype(np.float32), "logit": logit.numpy().astype(np.float32),
+            "pd": np.asarray(test.pd, np.float32), "pd_sub": np.asarray(test.pd_sub, np.float32),
+            "collides": np.asarray(test.collides, bool)}
+
+
+def inference_us(net: CollisionDetector, z: np.ndarray, batch_sizes=(1, 4096), reps: int = 5) -> dict:
+    """Microseconds per sample of the detector's forward pass on the CPU at each batch size.
+
+    A copy of ``net`` runs in eval mode without gradients in float32; per batch size one warm-up pass, then
+    the median of ``reps`` timed passes. A batch larger than ``z`` repeats its rows.
+
+    Args:
+        net: the detector.
+        z: (N, D) codes (the test set's), N >= 1.
+        batch_sizes: batch sizes timed.
+        reps: timed passes per batch size.
+
+    Returns:
+        ``{"batch_<b>": µs per sample, ..., "threads": torch's CPU threads}``.
+    """
+    import copy
+
+    z = np.asarray(z, np.float32)
+    if z.ndim != 2 or len(z) == 0:
+        raise ValueError(f"inference_us: z must be (N, D) with N >= 1, got {z.shape}")
+    cpu = copy.deepcopy(net).cpu().float().eval()
+    out = {}
+    with torch.no_grad():
+        for b in batch_sizes:
+            x = torch.as_tensor(np.resize(z, (int(b), z.shape[1])))  # rows repeated cyclically up to b
+            cpu(x)  # warm-up
+            times = []
+            for _ in range(int(reps)):
+                t0 = time.perf_counter()
+                cpu(x)
+                times.append(time.perf_counter() - t0)
+            out[f"batch_{int(b)}"] = 1e6 * float(np.median(times)) / int(b)
+    out["threads"] = torch.get_num_threads()
+    return out
 
 
 def shared_test_set(oracle: LatentOracle, det_cfg, latent_key: str, cache_dir: str | Path):
@@ -208,8 +268,13 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
                         enable_progress_bar=bool(det["progress_bar"]), enable_model_summary=False,
                         accelerator=det["accelerator"], devices=1, log_every_n_steps=1)
     trainer.fit(module, datamodule=dm, ckpt_path=str(ckpt) if resuming else None)
-    save_detector(run_dir / "detector.pt", module.net.cpu(), det, method, pd_unit)
-    out = {"rounds": rounds_cb.rounds, "detector": {**summary(), "resumed": resuming}}
+    final = module.net.cpu()
+    save_detector(run_dir / "detector.pt", final, det, method, pd_unit)
+    preds = run_dir / "test_predictions.npz"
+    np.savez_compressed(preds.with_name("test_predictions.tmp.npz"), **predict_test_set(final, test))
+    preds.with_name("test_predictions.tmp.npz").replace(preds)
+    out = {"rounds": rounds_cb.rounds, "detector": {**summary(), "resumed": resuming,
+                                                    "inference_us": inference_us(final, test.z)}}
     write_json_atomic(rounds_path, {"finished": rounds_cb.finished, "rounds": rounds_cb.rounds,
                                     "summary": out["detector"]})
     dm.close()

@@ -224,16 +224,41 @@ def plot_reduction_vs_difference(arrays: dict, path: Path, title: str = "") -> P
     return path
 
 
-def export_handling(out_dir: Path, arrays: dict, space, labeler, n_examples: int, title: str = "") -> None:
-    """Write the Fig. 6 scatter (``reduction_vs_difference.png``), the per-input arrays (``handling.npz``) and
-    ``n_examples`` handled inputs as OBJ + PNG (input, result, and the verified result where escalation replaced
-    it; penetrating vertices in red)."""
+def per_input_results(arrays: dict, pd_sub_before: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The detector-only handler's result per input, as written to ``handling/per_input.npz``.
+
+    Args:
+        arrays: the per-input arrays of :func:`evaluate_handler` (N inputs).
+        pd_sub_before: (N, K) exact PD of each input per sub-domain, or None (then left out).
+
+    Returns:
+        pd_before (N,) float64, pd_after (N,) float64 (NaN: the handler or the labeler failed), success (N,)
+        bool (the criterion of ``success_rate``), and pd_sub_before (N, K) float64 when given.
+    """
+    out = {"pd_before": np.asarray(arrays["pd_before"], np.float64),
+           "pd_after": np.asarray(arrays["pd_after"], np.float64), "success": np.asarray(arrays["success"], bool)}
+    if pd_sub_before is not None:
+        pd_sub = np.asarray(pd_sub_before, np.float64)
+        if pd_sub.ndim != 2 or len(pd_sub) != len(out["pd_before"]):
+            raise ValueError(f"per_input_results: pd_sub_before {pd_sub.shape} must be (N, K) with N = "
+                             f"{len(out['pd_before'])} inputs")
+        out["pd_sub_before"] = pd_sub
+    return out
+
+
+def export_handling(out_dir: Path, arrays: dict, space, labeler, n_examples: int, title: str = "",
+                    pd_sub_before: np.ndarray | None = None) -> None:
+    """Write the Fig. 6 scatter (``reduction_vs_difference.png``), the per-input arrays (``handling.npz``), the
+    detector-only result per input with the inputs' PD per sub-domain (``per_input.npz``,
+    :func:`per_input_results`; ``pd_sub_before``: (N, K) or None) and ``n_examples`` handled inputs as OBJ + PNG
+    (input, result, and the verified result where escalation replaced it; penetrating vertices in red)."""
     from neuralcol.geometry.mesh_io import write_mesh
     from neuralcol.metrics.plots import depth_colors, render_mesh_png
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(out_dir / "handling.npz", **arrays)
+    np.savez_compressed(out_dir / "per_input.npz", **per_input_results(arrays, pd_sub_before))
     plot_reduction_vs_difference(arrays, out_dir / "reduction_vs_difference.png", title)
     faces = space.faces.cpu().numpy()
     order = np.flatnonzero(arrays["finite"])[:n_examples]
