@@ -19,9 +19,9 @@ out of the chart that needs it, with one line saying so.
 
 ``model_size.json`` (in any directory given to the report)::
 
-    {"chosen": {"n_components": 8, "level2_dim": 3, "state_dim": 64, "hidden": 128}}
+    {"chosen": {"n_components": 8, "level2_dim": 3, "detector_width": 1.0}}
 
-``chosen`` holds any non-empty subset of the keys of :data:`CHOSEN_KEYS`; every configuration whose values
+(as ``model_size=auto`` and ``experiments.model_size`` write it). ``chosen`` holds any non-empty subset of the keys of :data:`CHOSEN_KEYS`; every configuration whose values
 equal all given ones is marked.
 """
 
@@ -45,15 +45,17 @@ from neuralcol.metrics.breakdown import (
     rate_by_group,
 )
 
-CHOSEN_KEYS = ("dataset", "method", "n_components", "level2_dim", "state_dim", "hidden", "n_parameters")
-SIZE_KEYS = ("n_components", "level2_dim", "state_dim", "hidden")
+CHOSEN_KEYS = ("dataset", "method", "n_components", "level2_dim", "state_dim", "hidden", "detector_width",
+               "n_parameters")
+SIZE_KEYS = ("n_components", "level2_dim", "state_dim", "hidden", "detector_width")
 N_COLLIDING_BINS = sum(e >= 0 for e in PD_BIN_EDGES)  # bins above PD 0: where the handler's inputs lie
 
 
 # ------------------------------------------------------------------------------------------- loading
 def size_config(run: dict) -> dict:
-    """The run's sizes: n_components K, level2_dim L (from ``latent``), the detector's state_dim and hidden
-    (from ``metrics["detector"]["net"]``, else the run's ``.hydra/config.yaml``; None when neither has them)."""
+    """The run's sizes: n_components K, level2_dim L (from ``latent``), the detector's state_dim, hidden and width
+    multiplier (from ``metrics["detector"]["net"]``, else the run's ``.hydra/config.yaml``; None when neither has
+    them)."""
     k = int(run["latent"]["n_parts"])
     net = run["detector"].get("net")
     cfg_path = Path(run["_path"]) / ".hydra" / "config.yaml"
@@ -63,7 +65,8 @@ def size_config(run: dict) -> dict:
         net = OmegaConf.to_container(OmegaConf.load(cfg_path).detector.net, resolve=True)
     net = net or {}
     return {"n_components": k, "level2_dim": int(run["latent"]["dim"]) // k - 1,
-            "state_dim": net.get("state_dim"), "hidden": net.get("hidden")}
+            "state_dim": net.get("state_dim"), "hidden": net.get("hidden"),
+            "detector_width": float(net.get("width", 1.0))}  # detector.net.width (issue 17; 1 before it)
 
 
 def config_label(cfg: dict) -> str:

@@ -91,3 +91,10 @@ def test_auto_search_end_to_end(tmp_path, capsys):
     assert "chosen:" in capsys.readouterr().out
     again = json.loads((tmp_path / "run" / "model_size" / "model_size.json").read_text())
     assert again["chosen"]["detector_width"] == c["detector_width"]
+    # ... and the report draws them with the choice marked on the Pareto chart
+    from experiments.report import main as report_main
+
+    report_main([str(tmp_path / "run" / "model_size"), "--out", str(tmp_path / "report")])
+    assert (tmp_path / "report" / "pareto.png").is_file()
+    starred = [ln for ln in (tmp_path / "report" / "report.md").read_text().splitlines() if "**chosen**" in ln]
+    assert len(starred) == 1 and f"K{c['n_components']} L{c['level2_dim']}" in starred[0]
