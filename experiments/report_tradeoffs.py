@@ -21,7 +21,8 @@ out of the chart that needs it, with one line saying so.
 
     {"chosen": {"n_components": 8, "level2_dim": 3, "detector_width": 1.0}}
 
-(as ``model_size=auto`` and ``experiments.model_size`` write it). ``chosen`` holds any non-empty subset of the keys of :data:`CHOSEN_KEYS`; every configuration whose values
+(as ``model_size=auto`` and ``experiments.model_size`` write it). ``chosen`` holds any non-empty subset of the
+keys of :data:`CHOSEN_KEYS`; every configuration whose values
 equal all given ones is marked.
 """
 
