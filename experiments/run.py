@@ -39,6 +39,7 @@ from neuralcol.stages.model_size import search_model_size, validate_model_size
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.resume import RunDirLock, find_interrupted_run
 from neuralcol.utils.seeding import seed_everything
+from neuralcol.utils.tensorboard import stage_logger
 from neuralcol.utils.validate import validate_run_config
 
 
@@ -75,20 +76,22 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         report = pool.label_report(ds.vertices.numpy().astype("float64"))
     labels = report.labels
     t_label = time.perf_counter() - t0
-    # bilevel autoencoder (trained, or loaded from the cache) and its latent space
-    from lightning.pytorch.loggers import TensorBoardLogger
-
-    logger = TensorBoardLogger(str(run_dir), name="tensorboard", version="")
+    # bilevel autoencoder (trained, or loaded from the cache) and its latent space; TensorBoard: one run per
+    # stage under <run dir>/tensorboard/ (neuralcol/utils/tensorboard.py)
     t0 = time.perf_counter()
     space, ae_report, ae_cached = train_or_load_latent_space(
-        ds, feats, cfg.autoencoder, cfg.dataset.latent, int(cfg.autoencoder_seed), Path(cfg.paths.cache_dir), logger)
+        ds, feats, cfg.autoencoder, cfg.dataset.latent, int(cfg.autoencoder_seed), Path(cfg.paths.cache_dir),
+        lambda stage: stage_logger(run_dir, stage))
     t_ae = time.perf_counter() - t0
     part = space.partition.numpy()
     render_mesh_png(run_dir / "subdomains.png", rest, faces, partition_colors(part),
                     title=f"{cfg.dataset.name}: {space.n_parts} sub-domains")
     colors = (partition_colors(part)[:, :3] * 255).astype("uint8")
-    logger.experiment.add_mesh("subdomains", vertices=torch.as_tensor(rest[None]).float(),
+    data_logger = stage_logger(run_dir, "data")
+    data_logger.experiment.add_mesh("subdomains", vertices=torch.as_tensor(rest[None]).float(),
                                colors=torch.as_tensor(colors[None]), faces=torch.as_tensor(faces[None]))
+    data_logger.finalize("success")
+    logger = stage_logger(run_dir, f"detector_{cfg.method.name}")
     # the neural collision detector, trained by the configured method on labeled decoded samples
     sample_labeler = build_labeler(cfg.labeling, faces, rest, partition=part)
     t0 = time.perf_counter()
@@ -117,8 +120,11 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     if handling_metrics is not None:
         export_handling(run_dir / "handling", arrays, space, sample_labeler, int(cfg.handler.n_examples),
                         title=f"{cfg.dataset.name}, {cfg.method.name}", pd_sub_before=pd_sub_user)
+        handling_logger = stage_logger(run_dir, "handling")
         for key in ("success_rate", "resolved_rate", "mean_pd_reduction", "mean_embedding_diff"):
-            logger.experiment.add_scalar(f"handling/{key}", handling_metrics[key])
+            handling_logger.experiment.add_scalar(f"handling/{key}", handling_metrics[key],
+                                                  global_step=det["rounds"][-1]["dataset_size"])
+        handling_logger.finalize("success")
     logger.finalize("success")
     k = min(int(cfg.n_example_meshes), len(ds))
     if k > 0:

@@ -156,6 +156,14 @@ def _scheduler(ae_cfg: dict, epochs: int):
     return instantiate(cfg)
 
 
+def _stage_logger(logger, stage: str):
+    """``logger`` may be one Lightning logger (both levels share it) or a factory ``stage name -> logger``
+    (one TensorBoard run per level: ``autoencoder_level1``, ``autoencoder_level2``)."""
+    if logger is None or hasattr(logger, "log_metrics"):
+        return logger
+    return logger(stage)
+
+
 def _trainer(ae_cfg: dict, epochs: int, logger, callbacks=()) -> L.Trainer:
     return L.Trainer(max_epochs=epochs, accelerator=ae_cfg.get("accelerator", "auto"), devices=1,
                      logger=logger if logger is not None else False, enable_checkpointing=False,
@@ -174,7 +182,7 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
         ae_cfg: autoencoder training config (``conf/autoencoder/*.yaml``).
         latent_cfg: latent sizes of this data set (``dataset.latent``).
         seed: seed of the split, initialisation and shuffling.
-        logger: Lightning logger (TensorBoard) or None.
+        logger: Lightning logger (TensorBoard), a factory ``stage name -> logger`` (one run per level), or None.
 
     Returns:
         The latent space and a report dict (errors, partition facts, seconds).
@@ -200,7 +208,7 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
         net, 1, optimizer=instantiate(ae["optimizer"], lr=l1cfg["lr"]), scheduler=_scheduler(ae, int(l1cfg["epochs"])),
         edges=torch.as_tensor(edges), w_sparsity=l1cfg["w_sparsity"], w_smoothness=l1cfg["w_smoothness"],
         w_balance=l1cfg["w_balance"], code_noise=float(l1cfg.get("code_noise", 0.0)))
-    _trainer(ae, int(l1cfg["epochs"]), logger).fit(stage1, dm)
+    _trainer(ae, int(l1cfg["epochs"]), _stage_logger(logger, "autoencoder_level1")).fit(stage1, dm)
     with torch.no_grad():
         raw_part = net.level1.attention().argmax(0).cpu().numpy()
     part = connect_partition(raw_part, edges, k)
@@ -212,7 +220,7 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
                                   scheduler=_scheduler(ae, int(l2cfg["epochs"])),
                                   code_noise=float(l2cfg.get("code_noise", 0.0)))
     if int(l2cfg["epochs"]) > 0:
-        _trainer(ae, int(l2cfg["epochs"]), logger).fit(stage2, dm)
+        _trainer(ae, int(l2cfg["epochs"]), _stage_logger(logger, "autoencoder_level2")).fit(stage2, dm)
     net.eval().cpu()
     with torch.no_grad():
         z = net.encode(x)

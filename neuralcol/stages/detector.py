@@ -30,6 +30,7 @@ from neuralcol.lit.detector import DetectorLitModule
 from neuralcol.metrics.detection import detection_metrics
 from neuralcol.nn.detector import CollisionDetector
 from neuralcol.utils.config import as_dict
+from neuralcol.utils.tensorboard import log_round_examples
 from neuralcol.utils.validate import METHODS  # one list of method names
 
 
@@ -232,6 +233,10 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
         if logger is not None:
             for key in ("accuracy", "fnr", "fpr", "balanced_accuracy", "base_rate"):
                 logger.experiment.add_scalar(f"test/{key}", last[key], global_step=last["dataset_size"])
+            if int(det.get("tensorboard_examples", 0)) > 0:  # a few of the round's new samples, decoded
+                rows = dm.store.read(np.flatnonzero(dm.store.read().round == last["round"]))
+                log_round_examples(logger.experiment, space, rows, int(last["dataset_size"]),
+                                   run_dir / "round_examples", int(det["tensorboard_examples"]))
         print(f"[{name}] round {last['round']}: |D_c| = {last['dataset_size']}, test accuracy "
               f"{last['accuracy']:.4f}, FNR {last['fnr']:.4f}, FPR {last['fpr']:.4f} (base rate "
               f"{last['base_rate']:.3f}); labeling {last['label_seconds']:.0f} s, training "
