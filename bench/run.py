@@ -342,13 +342,13 @@ def bench_neural(ctx: dict) -> dict:
     """Neural detector vs exact labels, Newton projection and the collision handler, with a trained detector."""
     from hydra.utils import instantiate
 
-    from experiments.handle import load_run
+    from neuralcol import load_run
     from neuralcol.active.newton import newton_project
     from neuralcol.stages.handling import alm_settings, handle_codes
 
     run_dir = _neural_run(ctx)
-    cfg, space, net = load_run(run_dir)
-    net = net.eval()
+    run = load_run(run_dir)
+    cfg, space, net = run.cfg, run.space, run.detector
     reps, quick = ctx["reps"], ctx["quick"]
     gen = torch.Generator().manual_seed(0)
     z = space.sample(4096, generator=gen)
@@ -519,12 +519,13 @@ def bench_memory(ctx: dict) -> dict:
 
     from hydra.utils import instantiate
 
-    from experiments.handle import load_run
+    from neuralcol import load_run
     from neuralcol.active.oracle import LatentOracle
     from neuralcol.collision.pool import LabelPool
     from neuralcol.data.collision_store import CollisionStore
 
-    cfg, space, _ = load_run(_neural_run(ctx))
+    run = load_run(_neural_run(ctx))
+    cfg, space = run.cfg, run.space
     labeler = instantiate(cfg.labeling.labeler)(space.faces.numpy(), space.rest_vertices.numpy(),
                                                 partition=space.partition.numpy())
     n = 2000 if ctx["quick"] else 10_000
