@@ -19,10 +19,10 @@ $(STAMP): pyproject.toml
 	test -x $(PYTHON) || $(PY) -m venv $(VENV)
 	$(PYTHON) -m pip install --quiet --upgrade pip
 	$(PYTHON) -c "import torch" 2>/dev/null || $(PYTHON) -m pip install "$(TORCH)"
-	$(PYTHON) -m pip install --quiet -e ".[dev]"
+	$(PYTHON) -m pip install --quiet -e ".[dev,export]"
 	touch $(STAMP)
 
-install: $(STAMP)  ## create .venv with a CPU torch and install neuralcol (editable, dev extras)
+install: $(STAMP)  ## create .venv with a CPU torch and install neuralcol (editable, dev and export extras)
 
 lint: $(STAMP)  ## ruff
 	$(BIN)/ruff check neuralcol experiments tests bench

@@ -342,13 +342,13 @@ def bench_neural(ctx: dict) -> dict:
     """Neural detector vs exact labels, Newton projection and the collision handler, with a trained detector."""
     from hydra.utils import instantiate
 
-    from experiments.handle import load_run
+    from neuralcol import load_run
     from neuralcol.active.newton import newton_project
     from neuralcol.stages.handling import alm_settings, handle_codes
 
     run_dir = _neural_run(ctx)
-    cfg, space, net = load_run(run_dir)
-    net = net.eval()
+    run = load_run(run_dir)
+    cfg, space, net = run.cfg, run.space, run.detector
     reps, quick = ctx["reps"], ctx["quick"]
     gen = torch.Generator().manual_seed(0)
     z = space.sample(4096, generator=gen)
@@ -413,6 +413,52 @@ def bench_neural(ctx: dict) -> dict:
                               f"handler: {len(colliding)} codes the detector calls colliding, batch "
                               f"{int(handler_cfg.batch_size)}, conf/handler/default.yaml settings, detector only "
                               "(no verification)")
+    return out
+
+
+def bench_export(ctx: dict) -> dict:
+    """The detector exported by ``experiments.export`` (TorchScript; ONNX Runtime when installed) next to the live
+    module, µs per sample at batch 4096, on the same codes."""
+    import tempfile
+
+    from experiments.export import export_run
+    from neuralcol import load_run
+
+    run_dir = _neural_run(ctx)
+    run = load_run(run_dir)
+    z = run.space.sample(4096, generator=torch.Generator().manual_seed(0))
+    reps = ctx["reps"] * 3
+    out: dict = {}
+    with torch.no_grad():
+        out["export_live_detector_us_b4096"] = summarize(repeat(lambda: run.detector(z), reps, warmup=2),
+                                                         1e6 / len(z))
+    formats = ["torchscript"]
+    try:
+        import onnx  # noqa: F401
+        import onnxruntime as ort
+
+        formats.append("onnx")
+    except ImportError:
+        ort = None
+    with tempfile.TemporaryDirectory() as tmp:
+        for fmt in formats:
+            export_run(run, Path(tmp) / fmt, fmt)
+            if fmt == "torchscript":
+                module = torch.jit.load(str(Path(tmp) / fmt / "detector.pt"))
+                with torch.no_grad():
+                    times = repeat(lambda m=module: m(z), reps, warmup=2)
+            else:
+                opts = ort.SessionOptions()
+                opts.intra_op_num_threads = torch.get_num_threads()
+                sess = ort.InferenceSession(str(Path(tmp) / fmt / "detector.onnx"), opts)
+                feed = {"codes": z.numpy()}
+                times = repeat(lambda s=sess, f=feed: s.run(None, f), reps, warmup=2)
+            out[f"export_{fmt}_detector_us_b4096"] = summarize(times, 1e6 / len(z))
+    where = run_dir.relative_to(ROOT) if run_dir.is_relative_to(ROOT) else run_dir
+    ctx["notes"]["export"] = (f"detector of {where} (outputs prob and the PD estimate), 4096 uniform codes per call, "
+                              f"{torch.get_num_threads()} threads (ONNX Runtime intra-op threads the same)"
+                              + ("" if ort is not None else "; onnxruntime not installed: ONNX not measured"))
+    run.close()
     return out
 
 
@@ -519,12 +565,13 @@ def bench_memory(ctx: dict) -> dict:
 
     from hydra.utils import instantiate
 
-    from experiments.handle import load_run
+    from neuralcol import load_run
     from neuralcol.active.oracle import LatentOracle
     from neuralcol.collision.pool import LabelPool
     from neuralcol.data.collision_store import CollisionStore
 
-    cfg, space, _ = load_run(_neural_run(ctx))
+    run = load_run(_neural_run(ctx))
+    cfg, space = run.cfg, run.space
     labeler = instantiate(cfg.labeling.labeler)(space.faces.numpy(), space.rest_vertices.numpy(),
                                                 partition=space.partition.numpy())
     n = 2000 if ctx["quick"] else 10_000
@@ -630,7 +677,8 @@ def _ratio(a: dict, b: dict) -> dict:
 
 BENCHES: dict[str, Callable[[dict], dict]] = {"acap": bench_acap, "labeler": bench_labeler, "pool": bench_pool,
                                               "dask": bench_dask, "fcl": bench_fcl, "neural": bench_neural,
-                                              "training": bench_training, "memory": bench_memory, "gpu": bench_gpu}
+                                              "training": bench_training, "memory": bench_memory, "gpu": bench_gpu,
+                                              "export": bench_export}
 
 
 def write_markdown(results: dict, path: Path) -> None:

@@ -16,41 +16,24 @@ self-penetrating are handled again with the larger margins of the run's ``handle
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import torch
-from omegaconf import OmegaConf
 
-from neuralcol.collision.backends import build_labeler
+from neuralcol.api import TrainedRun
+from neuralcol.api import load_run as load_trained_run
 from neuralcol.errors import UserInputError
 from neuralcol.geometry.mesh_io import MESH_SUFFIXES, read_mesh, write_mesh
-from neuralcol.handling.objectives import CartesianObjective, LatentObjective
 from neuralcol.nn.latent_space import LatentSpace
-from neuralcol.stages.detector import load_detector
-from neuralcol.stages.handling import alm_settings, handle_codes, verified_escalation
 from neuralcol.utils.cli import report_user_errors
 
 
-def load_run(run_dir: Path):
-    """(config, latent space, detector) of a finished run directory."""
-    cfg_path, det_path, metrics_path = run_dir / ".hydra" / "config.yaml", run_dir / "detector.pt", \
-        run_dir / "metrics.json"
-    for p in (cfg_path, det_path, metrics_path):
-        if not p.is_file():
-            raise UserInputError(f"{p}: missing; RUN_DIR must be the directory of a finished "
-                                 "`python -m experiments.run` (it holds .hydra/, detector.pt and metrics.json)")
-    cfg = OmegaConf.load(cfg_path)
-    key = json.loads(metrics_path.read_text())["autoencoder"].get("cache_key")
-    space_path = Path(cfg.paths.cache_dir) / "autoencoders" / str(key) / "latent_space.pt"
-    if key is None or not space_path.is_file():
-        raise UserInputError(f"{space_path}: the run's latent space is not in the cache (paths.cache_dir="
-                             f"{cfg.paths.cache_dir}); run the same command again to rebuild it")
-    net, _ = load_detector(det_path)
-    return cfg, LatentSpace.load(space_path), net
+def load_run(run_dir: Path) -> tuple:
+    """(config, latent space, detector) of a finished run directory (see :func:`neuralcol.load_run`)."""
+    run = load_trained_run(run_dir)
+    return run.cfg, run.space, run.detector
 
 
 def read_inputs(paths: list[Path], space: LatentSpace) -> tuple[list[str], torch.Tensor, torch.Tensor | None]:
@@ -96,54 +79,30 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--no-verify", action="store_true",
                         help="trust the detector: no exact check and no re-handling with larger margins")
     args = parser.parse_args(argv)
-    cfg, space, net = load_run(args.run_dir)
-    names, z_user, v_user = read_inputs(args.inputs, space)
-    if args.objective == "cartesian":
-        if v_user is None:
-            raise UserInputError("--objective cartesian needs mesh inputs (their vertices are the targets)")
-        subset = None
-        if args.vertices is not None:
-            subset = torch.as_tensor(np.loadtxt(args.vertices, dtype=np.int64).reshape(-1))
-            if len(subset) == 0 or subset.min() < 0 or subset.max() >= space.acap.n_vertices:
-                raise UserInputError(f"{args.vertices}: vertex indices must lie in [0, {space.acap.n_vertices})")
-        objective = CartesianObjective(space, v_user.float(), vertices=subset)
-    else:
-        objective = LatentObjective(z_user)
-    settings = alm_settings(cfg.handler.alm)
-    margins = [] if args.no_verify else \
-        [float(m) for m in (args.margins or OmegaConf.select(cfg, "handler.verify_margins", default=[]))]
-    faces = space.faces.numpy()
-    labeler = build_labeler(cfg.labeling, faces, space.rest_vertices.numpy(), partition=space.partition.numpy())
+    with load_trained_run(args.run_dir) as run:
+        resolve_files(run, args)
 
-    def handle(rows: np.ndarray, margin: float):
-        idx_map = torch.as_tensor(rows)
-        return handle_codes(net, z_user[idx_map], space.box_lo, space.box_hi, replace(settings, margin=margin),
-                            objective=lambda z, idx: objective(z, idx_map[idx]), batch_size=int(cfg.handler.batch_size))
 
-    def label(z: torch.Tensor) -> np.ndarray:
-        with torch.no_grad():
-            verts = space.decode(z).double().numpy()
-        return np.array([labeler.label(v).pd for v in verts])
-
-    res = handle(np.arange(len(z_user)), settings.margin)
-    pd_after = np.full(len(z_user), np.nan)
-    pd_after[res.finite.numpy()] = label(res.z[res.finite])
-    z, stage = res.z, np.zeros(len(z_user), dtype=np.int64)
-    if margins:
-        z, pd_after, stage, _ = verified_escalation(handle, label, z_user, z, pd_after, margins)
+def resolve_files(run: TrainedRun, args: argparse.Namespace) -> None:
+    """Resolve the input files of ``args`` with ``run``, write the results and print the PD table."""
+    names, z_user, v_user = read_inputs(args.inputs, run.space)
+    if args.objective == "cartesian" and v_user is None:
+        raise UserInputError("--objective cartesian needs mesh inputs (their vertices are the targets)")
+    subset = None
+    if args.vertices is not None:
+        subset = np.loadtxt(args.vertices, dtype=np.int64).reshape(-1)
+        if len(subset) == 0 or subset.min() < 0 or subset.max() >= run.n_vertices:
+            raise UserInputError(f"{args.vertices}: vertex indices must lie in [0, {run.n_vertices})")
+    res = run.resolve(v_user if v_user is not None else z_user, objective=args.objective,
+                      verify=not args.no_verify, margins=args.margins, subset=subset)
     out = args.out or args.run_dir / "handled"
     out.mkdir(parents=True, exist_ok=True)
-    with torch.no_grad():
-        before = space.decode(z_user).double().numpy()
-        after = space.decode(z).double().numpy()
+    after = res.vertices.double().cpu().numpy()
     print(f"{'input':<24} {'PD input':>10} {'PD decoded':>11} {'PD result':>10}  |Z - Z_user|  margin")
-    used = [settings.margin] + margins
     for i, name in enumerate(names):
-        pd_in = labeler.label(v_user[i].numpy()).pd if v_user is not None else float("nan")
-        pd_b = labeler.label(before[i]).pd
-        write_mesh(out / f"{name}_resolved.obj", after[i], faces)
-        print(f"{name:<24} {pd_in:>10.4g} {pd_b:>11.4g} {pd_after[i]:>10.4g}  "
-              f"{float((z[i] - z_user[i]).norm()):>12.2f}  {used[stage[i]]:g}")
+        write_mesh(out / f"{name}_resolved.obj", after[i], run.faces)
+        print(f"{name:<24} {res.pd_input[i]:>10.4g} {res.pd_before[i]:>11.4g} {res.pd_after[i]:>10.4g}  "
+              f"{float((res.codes[i] - res.codes_before[i]).norm()):>12.2f}  {res.margin[i]:g}")
     sys.stdout.flush()
     print(f"wrote {len(names)} meshes to {out} (PD > 0: self-penetrating, in units of the mesh; margin: the "
           "detector-logit margin of the kept result)", file=sys.stderr)

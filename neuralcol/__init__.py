@@ -19,6 +19,8 @@ _EXPORTS = {
     "write_meshes": "neuralcol.geometry.mesh_io",
     "ExactLabeler": "neuralcol.collision.labeler",
     "LabelPool": "neuralcol.collision.pool",
+    "load_run": "neuralcol.api",
+    "TrainedRun": "neuralcol.api",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -51,6 +51,12 @@ def _pt(verts, i):
     return (verts[i, 0], verts[i, 1], verts[i, 2])
 
 
+@njit(cache=True, inline="always")
+def _tri(verts, faces, f):
+    """The three corners of triangle f, each an (x, y, z) tuple."""
+    return _pt(verts, faces[f, 0]), _pt(verts, faces[f, 1]), _pt(verts, faces[f, 2])
+
+
 # ----------------------------------------------------------------------------------------- broadphase
 @njit(cache=True)
 def triangle_aabbs(verts, faces, inflate):
@@ -283,9 +289,9 @@ def near_table(rest, faces, pairs, cap, scale):
         else:
             if _tri_dist(rest, faces, a, b) >= cap:
                 continue
-            val = -triangle_pair_depth(_pt(rest, faces[a, 0]), _pt(rest, faces[a, 1]), _pt(rest, faces[a, 2]),
-                                       _pt(rest, faces[b, 0]), _pt(rest, faces[b, 1]), _pt(rest, faces[b, 2]),
-                                       scale)
+            p0, p1, p2 = _tri(rest, faces, a)
+            q0, q1, q2 = _tri(rest, faces, b)
+            val = -triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
         keys[m] = a * n_faces + b
         vals[m] = val
         m += 1
@@ -300,9 +306,9 @@ def pair_depths(verts, faces, pairs, scale):
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
         b = pairs[k, 1]
-        out[k] = triangle_pair_depth(_pt(verts, faces[a, 0]), _pt(verts, faces[a, 1]), _pt(verts, faces[a, 2]),
-                                     _pt(verts, faces[b, 0]), _pt(verts, faces[b, 1]), _pt(verts, faces[b, 2]),
-                                     scale)
+        p0, p1, p2 = _tri(verts, faces, a)
+        q0, q1, q2 = _tri(verts, faces, b)
+        out[k] = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
     return out
 
 
@@ -312,8 +318,9 @@ def any_intersection(verts, faces, pairs, scale, tau):
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
         b = pairs[k, 1]
-        d = triangle_pair_depth(_pt(verts, faces[a, 0]), _pt(verts, faces[a, 1]), _pt(verts, faces[a, 2]),
-                                _pt(verts, faces[b, 0]), _pt(verts, faces[b, 1]), _pt(verts, faces[b, 2]), scale)
+        p0, p1, p2 = _tri(verts, faces, a)
+        q0, q1, q2 = _tri(verts, faces, b)
+        d = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
         if d > tau:
             return True
     return False
@@ -515,12 +522,8 @@ def verdict_kernel(verts, faces, lo, hi, cell, scale, tau):
             continue
         if shared == 1 and not opposite_edges_cross(verts, faces, a, b):
             continue
-        p0 = _pt(verts, faces[a, 0])
-        p1 = _pt(verts, faces[a, 1])
-        p2 = _pt(verts, faces[a, 2])
-        q0 = _pt(verts, faces[b, 0])
-        q1 = _pt(verts, faces[b, 1])
-        q2 = _pt(verts, faces[b, 2])
+        p0, p1, p2 = _tri(verts, faces, a)
+        q0, q1, q2 = _tri(verts, faces, b)
         if shared == 0 and plane_separated(p0, p1, p2, q0, q1, q2, tau):
             continue
         if triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale) > tau:
@@ -538,8 +541,9 @@ def _edge_id(adj_ptr, adj_idx, adj_eid, u, w):
 
 @njit(cache=True)
 def _tri_dist(verts, faces, a, b):
-    return triangle_distance(_pt(verts, faces[a, 0]), _pt(verts, faces[a, 1]), _pt(verts, faces[a, 2]),
-                             _pt(verts, faces[b, 0]), _pt(verts, faces[b, 1]), _pt(verts, faces[b, 2]))
+    p0, p1, p2 = _tri(verts, faces, a)
+    q0, q1, q2 = _tri(verts, faces, b)
+    return triangle_distance(p0, p1, p2, q0, q1, q2)
 
 
 @njit(cache=True, inline="always")
@@ -627,12 +631,8 @@ def _pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap, cle
     ``idx`` is the pair's near-table row (-1: far). ``evaluated`` is False for a far pair that provably cannot
     lower any clearance of its parts below the current one (then depth and c are not computed).
     """
-    p0 = _pt(verts, faces[a, 0])
-    p1 = _pt(verts, faces[a, 1])
-    p2 = _pt(verts, faces[a, 2])
-    q0 = _pt(verts, faces[b, 0])
-    q1 = _pt(verts, faces[b, 1])
-    q2 = _pt(verts, faces[b, 2])
+    p0, p1, p2 = _tri(verts, faces, a)
+    q0, q1, q2 = _tri(verts, faces, b)
     near = idx >= 0
     if shared == 1:
         if opposite_edges_cross(verts, faces, a, b):
@@ -685,9 +685,7 @@ def _add_crossings(verts, faces, a, b, adj_ptr, adj_idx, adj_eid, orient, rec_ke
     for side in range(2):
         s = a if side == 0 else b
         t = b if side == 0 else a
-        ta = _pt(verts, faces[t, 0])
-        tb = _pt(verts, faces[t, 1])
-        tc = _pt(verts, faces[t, 2])
+        ta, tb, tc = _tri(verts, faces, t)
         for i in range(3):
             u = faces[s, i]
             w = faces[s, (i + 1) % 3]
@@ -848,9 +846,7 @@ def triangle_axes(verts, faces, scale):
     lo = np.zeros((n_faces, 4))
     hi = np.zeros((n_faces, 4))
     for f in range(n_faces):
-        p0 = _pt(verts, faces[f, 0])
-        p1 = _pt(verts, faces[f, 1])
-        p2 = _pt(verts, faces[f, 2])
+        p0, p1, p2 = _tri(verts, faces, f)
         e0 = _sub(p1, p0)
         e1 = _sub(p2, p1)
         e2 = _sub(p0, p2)
@@ -900,9 +896,7 @@ def _axes_gap(axes, inv, lo, hi, f, q0, q1, q2):
 def _seed_depth(verts, faces, seeds, k):
     """Depth of a crossing edge: distance of its nearer endpoint to the pierced triangle."""
     t = seeds[k, 2]
-    ta = _pt(verts, faces[t, 0])
-    tb = _pt(verts, faces[t, 1])
-    tc = _pt(verts, faces[t, 2])
+    ta, tb, tc = _tri(verts, faces, t)
     return min(point_triangle_distance(_pt(verts, seeds[k, 0]), ta, tb, tc),
                point_triangle_distance(_pt(verts, seeds[k, 1]), ta, tb, tc))
 
@@ -1002,14 +996,14 @@ def _penetration_depths(verts, faces, seeds, adj_ptr, adj_idx, adj_eid, blocked,
                 if lb[k] < lb[k_best]:
                     k_best = k
             f = opp[k_best]
-            best = point_triangle_distance(p, _pt(verts, faces[f, 0]), _pt(verts, faces[f, 1]),
-                                           _pt(verts, faces[f, 2]))
+            t0, t1, t2 = _tri(verts, faces, f)
+            best = point_triangle_distance(p, t0, t1, t2)
             for k in range(n_opp):
                 if lb[k] >= best:
                     continue
                 f = opp[k]
-                d = point_triangle_distance(p, _pt(verts, faces[f, 0]), _pt(verts, faces[f, 1]),
-                                            _pt(verts, faces[f, 2]))
+                t0, t1, t2 = _tri(verts, faces, f)
+                d = point_triangle_distance(p, t0, t1, t2)
                 if d < best:
                     best = d
             depth[v] = best
@@ -1113,9 +1107,7 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
     best_k = np.full(n_parts, -1, dtype=np.int64)
     n_pairs = 0
     for a in range(n_faces):
-        p0 = _pt(verts, faces[a, 0])
-        p1 = _pt(verts, faces[a, 1])
-        p2 = _pt(verts, faces[a, 2])
+        p0, p1, p2 = _tri(verts, faces, a)
         t_all = min(clear.max(), cap)  # no term >= this can lower any clearance (they only fall)
         for idx in range(near_ptr[a], near_ptr[a + 1]):
             b = near_b[idx]
@@ -1130,9 +1122,7 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
                 if g > 0.0:
                     bound = cap if r <= 0.0 else cap * (g * BOUND_SHRINK) / r
             else:
-                q0 = _pt(verts, faces[b, 0])
-                q1 = _pt(verts, faces[b, 1])
-                q2 = _pt(verts, faces[b, 2])
+                q0, q1, q2 = _tri(verts, faces, b)
                 g = _axes_gap(axes, inv, ax_lo, ax_hi, a, q0, q1, q2)
                 if (not overlap or g > tau) and (r <= 0.0 or cap * (g * BOUND_SHRINK) / r >= t_all):
                     continue  # not counted, and its term cannot lower any clearance
@@ -1186,10 +1176,9 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
 @njit(cache=True, inline="always")
 def _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi):
     """Largest gap between triangles a and b along their own SAT axes: ``<= -depth`` and ``<= distance``."""
-    return max(_axes_gap(axes, inv, ax_lo, ax_hi, a, _pt(verts, faces[b, 0]), _pt(verts, faces[b, 1]),
-                         _pt(verts, faces[b, 2])),
-               _axes_gap(axes, inv, ax_lo, ax_hi, b, _pt(verts, faces[a, 0]), _pt(verts, faces[a, 1]),
-                         _pt(verts, faces[a, 2])))
+    p0, p1, p2 = _tri(verts, faces, a)
+    q0, q1, q2 = _tri(verts, faces, b)
+    return max(_axes_gap(axes, inv, ax_lo, ax_hi, a, q0, q1, q2), _axes_gap(axes, inv, ax_lo, ax_hi, b, p0, p1, p2))
 
 
 @njit(cache=True)

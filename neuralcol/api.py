@@ -1,0 +1,344 @@
+"""A finished run as one object: ``run = neuralcol.load_run(RUN_DIR)``.
+
+``RUN_DIR`` is the directory of a finished ``python -m experiments.run`` (it holds ``.hydra/config.yaml``,
+``detector.pt`` and ``metrics.json``; the latent space comes from the run's autoencoder cache). The
+:class:`TrainedRun` it returns maps meshes to latent codes and back, asks the detector, labels exactly and
+resolves self-collisions::
+
+    run = neuralcol.load_run("outputs/2024-01-01/12-00-00")
+    det = run.detect(vertices)          # (B, V, 3) meshes or (B, D) codes -> Detection (prob, logit, pd, pd_sub)
+    out = run.resolve(vertices)         # Resolved: vertices, codes, exact PD before and after
+    run.close()                         # (or `with neuralcol.load_run(...) as run:`) stops the label workers
+
+Symbols: B batch, V vertices, D = |Z_all| latent size, K sub-domains. PD is the exact penetration depth in
+the units of the mesh (> 0: self-penetrating; docs/labels.md).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from neuralcol.errors import UserInputError
+from neuralcol.nn.detector import CollisionDetector, smooth_max
+from neuralcol.nn.latent_space import LatentSpace
+
+OBJECTIVES = ("latent", "cartesian")
+
+
+class Detection(NamedTuple):
+    """The detector's answer for B codes (tensors on the run's device, float32).
+
+    prob (B,): collision probability. logit (B,): its logit (the handler's constraint is ``logit <= -margin``).
+    pd (B,): the detector's PD estimate in mesh units, ``pd_unit * smooth_max(S, temperature)`` (the quantity
+    its loss fits to the exact PD; trained on targets clipped to ``detector.loss.pd_clip`` units, so deep
+    penetrations saturate). pd_sub (B, K): the per-sub-domain estimates ``pd_unit * S_i``.
+    """
+
+    prob: torch.Tensor
+    logit: torch.Tensor
+    pd: torch.Tensor
+    pd_sub: torch.Tensor
+
+
+class Resolved(NamedTuple):
+    """Result of :meth:`TrainedRun.resolve` for N inputs.
+
+    vertices (N, V, 3) float32: the resolved meshes (decoded ``codes``). codes (N, D) float32: their latent
+    codes. codes_before (N, D): the inputs' codes. pd_input (N,) float64: exact PD of the input meshes (NaN for
+    code inputs). pd_before (N,): exact PD of the decoded input codes. pd_after (N,): exact PD of the result
+    (NaN: the handler or the labeler failed). margin (N,): the detector-logit margin of the kept result.
+    """
+
+    vertices: torch.Tensor
+    codes: torch.Tensor
+    codes_before: torch.Tensor
+    pd_input: np.ndarray
+    pd_before: np.ndarray
+    pd_after: np.ndarray
+    margin: np.ndarray
+
+
+def _finish_hint(run_dir: Path) -> str:
+    return (f"finish it by running its command again with hydra.run.dir={run_dir} (it resumes after its last "
+            "finished round), or pass the directory of a finished run")
+
+
+def check_run_dir(run_dir: Path) -> tuple[DictConfig, dict]:
+    """The config and metrics of a finished run directory; :class:`UserInputError` naming what is missing."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise UserInputError(f"{run_dir}: no such directory; give the output directory of a finished "
+                             "`python -m experiments.run`")
+    cfg_path = run_dir / ".hydra" / "config.yaml"
+    if not cfg_path.is_file():
+        raise UserInputError(f"{cfg_path}: missing; {run_dir} is not the output directory of "
+                             "`python -m experiments.run` (such a directory holds .hydra/, detector.pt and "
+                             "metrics.json)")
+    det_path, metrics_path = run_dir / "detector.pt", run_dir / "metrics.json"
+    if not metrics_path.is_file() and (run_dir / "resumed_in.txt").is_file():
+        raise UserInputError(f"{run_dir}: this run was resumed in {(run_dir / 'resumed_in.txt').read_text().strip()}"
+                             "; load that directory")
+    for p, when in ((det_path, "when the detector's training ends"), (metrics_path, "when the run ends")):
+        if not p.is_file():
+            raise UserInputError(f"{p}: missing (written {when}); {run_dir} is not a finished run, whose directory "
+                                 f"holds .hydra/, detector.pt and metrics.json: {_finish_hint(run_dir)}")
+    cfg = OmegaConf.load(cfg_path)
+    missing = [k for k in ("dataset", "labeling", "detector", "handler", "paths") if k not in cfg]
+    if missing:
+        raise UserInputError(f"{cfg_path}: has no {', '.join(missing)} section; not a neuralcol run configuration")
+    metrics = json.loads(metrics_path.read_text())
+    if not isinstance(metrics.get("autoencoder"), dict) or not isinstance(metrics.get("detector"), dict):
+        raise UserInputError(f"{metrics_path}: has no autoencoder/detector results; not the metrics of a "
+                             "finished neuralcol run")
+    return cfg, metrics
+
+
+def load_run(run_dir: str | Path, device: str | torch.device = "cpu", workers: int | None = None,
+             progress: bool = False) -> TrainedRun:
+    """Load a finished run: its config, latent space and final detector.
+
+    Args:
+        run_dir: output directory of a finished ``python -m experiments.run``.
+        device: where the detector and the latent space's network run (the ACAP solve is on the CPU).
+        workers: label worker processes for :meth:`TrainedRun.label` (None: the run's
+            ``labeling.pool.workers``; 0: in this process).
+        progress: progress bars while labeling.
+
+    Raises:
+        UserInputError: not a run directory, an unfinished run, or its latent space is not in the cache.
+    """
+    from neuralcol.stages.detector import load_detector
+
+    run_dir = Path(run_dir)
+    cfg, metrics = check_run_dir(run_dir)
+    key = metrics["autoencoder"].get("cache_key")
+    space_path = Path(cfg.paths.cache_dir) / "autoencoders" / str(key) / "latent_space.pt"
+    if key is None or not space_path.is_file():
+        raise UserInputError(f"{space_path}: the run's latent space is not in the cache (paths.cache_dir="
+                             f"{cfg.paths.cache_dir}); run the same command again to rebuild it")
+    net, blob = load_detector(run_dir / "detector.pt")
+    pd_unit = float(blob.get("pd_unit") or metrics["detector"]["pd_unit"])
+    temperature = float(OmegaConf.select(cfg, "detector.loss.temperature", default=0.1))
+    return TrainedRun(run_dir, cfg, metrics, LatentSpace.load(space_path), net, pd_unit, temperature,
+                      device=device, workers=workers, progress=progress)
+
+
+class TrainedRun:
+    """A finished run: latent space, detector, exact labeler (a resource owner: its label pool opens on the
+    first :meth:`label` and closes in :meth:`close`). Built by :func:`load_run`.
+
+    Args:
+        run_dir: the run directory. cfg: its config. metrics: its ``metrics.json``.
+        space: the latent space. detector: the final detector.
+        pd_unit: the length the detector's PD targets were divided by (the labeler's clearance cap).
+        temperature: the smooth-max temperature of the detector's aggregated PD.
+        device: device of the networks. workers: label worker processes (None: the run's setting).
+        progress: progress bars while labeling.
+    """
+
+    def __init__(self, run_dir: Path, cfg: DictConfig, metrics: dict, space: LatentSpace,
+                 detector: CollisionDetector, pd_unit: float, temperature: float, device="cpu",
+                 workers: int | None = None, progress: bool = False):
+        self.run_dir, self.cfg, self.metrics = Path(run_dir), cfg, metrics
+        self.device = torch.device(device)
+        self.space = space.to(self.device).eval()
+        self.detector = detector.to(self.device).eval()
+        self.pd_unit, self.temperature = float(pd_unit), float(temperature)
+        pool_cfg = OmegaConf.to_container(cfg.labeling.pool, resolve=True)
+        pool_cfg["progress"] = bool(progress)
+        if workers is not None:
+            pool_cfg["workers"] = int(workers)
+        self._pool_cfg = pool_cfg
+        self._pool = None
+        self._labeler = None
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def dim(self) -> int:
+        """D, the latent code size."""
+        return self.space.dim
+
+    @property
+    def faces(self) -> np.ndarray:
+        """(F, 3) int64 triangles shared by every mesh of the run."""
+        return self.space.faces.cpu().numpy()
+
+    @property
+    def n_vertices(self) -> int:
+        return self.space.acap.n_vertices
+
+    def __repr__(self) -> str:
+        return (f"TrainedRun({self.run_dir}, dataset={self.cfg.dataset.name}, V={self.n_vertices}, D={self.dim}, "
+                f"K={self.space.n_parts}, device={self.device})")
+
+    # ------------------------------------------------------------------ inputs
+    def _vertices(self, x, name: str = "vertices") -> torch.Tensor:
+        """(B, V, 3) or (V, 3) meshes -> (B, V, 3) float64 CPU tensor."""
+        v = torch.as_tensor(np.asarray(x) if not torch.is_tensor(x) else x).detach()
+        v = v[None] if v.ndim == 2 else v
+        if v.ndim != 3 or v.shape[1:] != (self.n_vertices, 3):
+            raise UserInputError(f"{name} have shape {tuple(v.shape)}; this run's meshes are ({self.n_vertices}, 3) "
+                                 f"(give (B, {self.n_vertices}, 3) or one ({self.n_vertices}, 3) mesh)")
+        if not bool(torch.isfinite(v).all()):
+            raise UserInputError(f"{name}: non-finite coordinates")
+        return v.to("cpu", torch.float64)
+
+    def _is_vertices(self, x) -> bool:
+        shape = tuple(x.shape)
+        return len(shape) >= 2 and shape[-2:] == (self.n_vertices, 3)
+
+    def _codes(self, x) -> torch.Tensor:
+        """(B, D) or (D,) codes -> (B, D) float32 tensor on the run's device."""
+        z = torch.as_tensor(np.asarray(x) if not torch.is_tensor(x) else x).detach()
+        z = z[None] if z.ndim == 1 else z
+        if z.ndim != 2 or z.shape[1] != self.dim:
+            raise UserInputError(f"codes have shape {tuple(z.shape)}; this run's latent codes are ({self.dim},) "
+                                 f"(give (B, {self.dim}) codes or (B, {self.n_vertices}, 3) meshes)")
+        if not bool(torch.isfinite(z).all()):
+            raise UserInputError("codes: non-finite values")
+        return z.to(self.device, torch.float32)
+
+    # ------------------------------------------------------------------ maps
+    def encode(self, vertices) -> torch.Tensor:
+        """Meshes (B, V, 3) or (V, 3), numpy or torch -> latent codes (B, D) float32 on the run's device."""
+        return self.space.encode(self._vertices(vertices))
+
+    def decode(self, codes) -> torch.Tensor:
+        """Codes (B, D) or (D,) -> meshes (B, V, 3) float32 on the run's device (no gradient)."""
+        with torch.no_grad():
+            return self.space.decode(self._codes(codes))
+
+    def detect(self, vertices_or_codes, batch_size: int = 4096) -> Detection:
+        """The detector on meshes (B, V, 3) (encoded first) or codes (B, D), in batches of ``batch_size``."""
+        x = vertices_or_codes
+        z = self.encode(x) if self._is_vertices(x) else self._codes(x)
+        parts = []
+        with torch.no_grad():
+            for start in range(0, len(z), batch_size):
+                out = self.detector(z[start:start + batch_size])
+                parts.append(Detection(out.prob, out.logit, smooth_max(out.s, self.temperature) * self.pd_unit,
+                                       out.s * self.pd_unit))
+        if not parts:
+            empty = z.new_zeros(0)
+            return Detection(empty, empty, empty, z.new_zeros(0, self.space.n_parts))
+        return Detection(*(torch.cat(t) for t in zip(*parts)))
+
+    # ------------------------------------------------------------------ exact labels
+    def _label_pool(self):
+        if self._pool is None:
+            from neuralcol.collision.backends import build_labeler
+            from neuralcol.collision.pool import LabelPool
+
+            space = self.space
+            self._labeler = build_labeler(self.cfg.labeling, self.faces, space.rest_vertices.cpu().numpy(),
+                                          partition=space.partition.cpu().numpy())
+            self._pool = LabelPool(self._labeler, **self._pool_cfg, desc="labeling").__enter__()
+        return self._pool
+
+    def label(self, vertices):
+        """Exact labels of meshes (B, V, 3) or (V, 3) through the run's label pool.
+
+        Returns:
+            ``neuralcol.collision.pool.Labels``: collides (B,) bool, n_pairs (B,) int64, pd (B,) float64 (mesh
+            units), pd_sub (B, K) float64.
+
+        Raises:
+            LabelingError: some meshes could not be labelled (it lists them).
+        """
+        return self._label_pool().label(self._vertices(vertices).numpy())
+
+    def _pd(self, vertices: torch.Tensor) -> np.ndarray:
+        """Exact PD (B,) of meshes; NaN where the labeler failed (never raises for a mesh)."""
+        if len(vertices) == 0:
+            return np.zeros(0)
+        report = self._label_pool().label_report(vertices.detach().to("cpu", torch.float64).numpy())
+        return np.where(report.ok, report.labels.pd, np.nan)
+
+    def close(self) -> None:
+        """Stop the label workers (if any were started)."""
+        if self._pool is not None:
+            pool, self._pool = self._pool, None
+            pool.__exit__(None, None, None)
+
+    def __enter__(self) -> TrainedRun:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ handling
+    def resolve(self, vertices_or_codes, objective: str = "latent", verify: bool = True, margins=None,
+                subset=None) -> Resolved:
+        """Move self-colliding inputs to the nearest codes the detector calls collision-free; measure exactly.
+
+        The augmented-Lagrangian handler (docs/handler.md) runs with the run's ``handler`` settings; the exact
+        labeler measures PD before and after. With ``verify`` the results it still finds self-penetrating are
+        handled again with the larger margins (``margins``, default the run's ``handler.verify_margins``) and
+        the lowest-PD result is kept; ``verify=False`` trusts the detector (PD after is still measured).
+
+        Args:
+            vertices_or_codes: meshes (N, V, 3) / (V, 3) or codes (N, D) / (D,), numpy or torch.
+            objective: ``"latent"`` (stay close to the input's code) or ``"cartesian"`` (stay close to the input
+                mesh's vertices; mesh inputs only).
+            verify: exact verification with margin escalation.
+            margins: verification margins, each above ``handler.alm.margin`` (None: the run's).
+            subset: ``objective="cartesian"``: (S,) vertex indices whose positions count (None: all).
+
+        Returns:
+            :class:`Resolved`.
+        """
+        from neuralcol.handling.objectives import CartesianObjective, LatentObjective
+        from neuralcol.stages.handling import alm_settings, handle_codes, verified_escalation
+
+        if objective not in OBJECTIVES:
+            raise UserInputError(f"objective={objective!r}; use one of {OBJECTIVES}")
+        x = vertices_or_codes
+        v_user = self._vertices(x) if self._is_vertices(x) else None
+        z_user = (self.encode(v_user) if v_user is not None else self._codes(x)).float().cpu()
+        if objective == "cartesian":
+            if v_user is None:
+                raise UserInputError("objective='cartesian' needs meshes (B, V, 3): their vertices are the targets")
+            if subset is not None:
+                subset = torch.as_tensor(np.asarray(subset), dtype=torch.long).reshape(-1)
+                if len(subset) == 0 or subset.min() < 0 or subset.max() >= self.n_vertices:
+                    raise UserInputError(f"subset: vertex indices must lie in [0, {self.n_vertices})")
+            target = CartesianObjective(self.space, v_user.float().to(self.device), vertices=subset)
+        else:
+            target = LatentObjective(z_user.to(self.device))
+        settings = alm_settings(self.cfg.handler.alm)
+        margins = [] if not verify else \
+            [float(m) for m in (margins if margins is not None else
+                                OmegaConf.select(self.cfg, "handler.verify_margins", default=[]))]
+        bad = [m for m in margins if m <= settings.margin]
+        if bad:
+            raise UserInputError(f"margins {bad} must exceed handler.alm.margin = {settings.margin}")
+        batch = int(self.cfg.handler.batch_size)
+
+        def handle(rows: np.ndarray, margin: float):
+            idx_map = torch.as_tensor(rows, device=self.device)
+            return handle_codes(self.detector, z_user[torch.as_tensor(rows)], self.space.box_lo, self.space.box_hi,
+                                replace(settings, margin=margin), batch_size=batch,
+                                objective=lambda z, idx: target(z, idx_map[idx]))
+
+        def label(z: torch.Tensor) -> np.ndarray:
+            return self._pd(self.decode(z))
+
+        res = handle(np.arange(len(z_user)), settings.margin)
+        pd_after = np.full(len(z_user), np.nan)
+        pd_after[res.finite.numpy()] = label(res.z[res.finite])
+        z, stage = res.z.float(), np.zeros(len(z_user), dtype=np.int64)
+        if margins:
+            z, pd_after, stage, _ = verified_escalation(handle, label, z_user, z, pd_after, margins)
+        used = np.array([settings.margin, *margins])
+        with torch.no_grad():  # (a failed result's code may be non-finite: no input check here)
+            verts = self.space.decode(z.to(self.device))
+        return Resolved(vertices=verts, codes=z.to(self.device), codes_before=z_user.to(self.device),
+                        pd_input=self._pd(v_user) if v_user is not None else np.full(len(z_user), np.nan),
+                        pd_before=label(z_user), pd_after=pd_after, margin=used[stage])

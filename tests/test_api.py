@@ -1,0 +1,205 @@
+"""neuralcol.load_run (the finished-run API), its errors, the README's first Python example, and the export of
+the decoder and detector (TorchScript, ONNX) checked against the live modules."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from neuralcol.errors import UserInputError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory) -> Path:
+    """One tiny finished run (procedural hand, 24 poses, tiny autoencoder and detector; ~30 s), shared."""
+    from experiments.run import run
+
+    tmp = tmp_path_factory.mktemp("api")
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[
+            "dataset=proc_hand", "dataset.source.n_poses=24", f"paths.cache_dir={tmp}/cache", "n_example_meshes=0",
+            "autoencoder=tiny", "detector=tiny", "handler.n_inputs=0", "labeling.pool.workers=0",
+            "labeling.pool.progress=false"])
+    run(cfg, tmp / "run")
+    (tmp / "run" / ".hydra").mkdir()
+    OmegaConf.save(cfg, tmp / "run" / ".hydra" / "config.yaml")
+    return tmp / "run"
+
+
+@pytest.fixture(scope="module")
+def trained(run_dir):
+    import neuralcol
+
+    with neuralcol.load_run(run_dir) as run:
+        yield run
+
+
+def _codes(run, n: int, seed: int) -> torch.Tensor:
+    return run.space.sample(n, generator=torch.Generator().manual_seed(seed))
+
+
+def test_detect_encode_decode_label(trained):
+    from neuralcol.collision.labeler import ExactLabeler
+    from neuralcol.nn.detector import smooth_max
+
+    z = _codes(trained, 6, 0)
+    det = trained.detect(z, batch_size=4)  # two batches
+    out = trained.detector(z)
+    torch.testing.assert_close(det.prob, out.prob)  # (batches of 4 and 2 vs 6: float rounding)
+    torch.testing.assert_close(det.pd, smooth_max(out.s, trained.temperature) * trained.pd_unit)
+    assert det.pd_sub.shape == (6, trained.space.n_parts)
+    verts = trained.decode(z)
+    assert verts.shape == (6, trained.n_vertices, 3)
+    torch.testing.assert_close(trained.detect(verts).prob, trained.detector(trained.encode(verts)).prob)
+    one = trained.detect(verts[0].numpy())  # one (V, 3) numpy mesh
+    assert one.prob.shape == (1,)
+    labels = trained.label(verts)
+    ref = ExactLabeler(trained.faces, trained.space.rest_vertices.numpy(), partition=trained.space.partition.numpy(),
+                       **{k: v for k, v in OmegaConf.to_container(trained.cfg.labeling.labeler).items()
+                          if not k.startswith("_")})
+    np.testing.assert_array_equal(labels.pd, [ref.label(v).pd for v in verts.double().numpy()])
+
+
+def test_resolve_latent_and_cartesian(trained):
+    z = _codes(trained, 3, 1)
+    verts = trained.decode(z)
+    res = trained.resolve(verts, margins=[4.0])
+    assert res.vertices.shape == (3, trained.n_vertices, 3) and res.codes.shape == (3, trained.dim)
+    torch.testing.assert_close(res.codes_before, trained.encode(verts))
+    np.testing.assert_array_equal(res.pd_input, trained.label(verts).pd)
+    np.testing.assert_array_equal(res.pd_before, trained.label(trained.decode(res.codes_before)).pd)
+    finite = np.isfinite(res.pd_after)
+    np.testing.assert_array_equal(res.pd_after[finite], trained.label(res.vertices[finite]).pd)
+    assert set(res.margin) <= {3.0, 4.0}
+    # detector-guided: the handler lowers the detector's logit (this tiny detector cannot reach -margin)
+    keep = torch.as_tensor(finite)
+    assert (trained.detect(res.codes[keep]).logit < trained.detect(res.codes_before[keep]).logit).all()
+    codes_only = trained.resolve(res.codes_before, verify=False)
+    assert np.isnan(codes_only.pd_input).all() and (codes_only.margin == 3.0).all()
+    cart = trained.resolve(verts[:1], objective="cartesian", verify=False, subset=[0, 1, 2])
+    assert cart.vertices.shape == (1, trained.n_vertices, 3)
+    with pytest.raises(UserInputError, match="needs meshes"):
+        trained.resolve(z[:1], objective="cartesian")
+    with pytest.raises(UserInputError, match="objective='nearest'"):
+        trained.resolve(z[:1], objective="nearest")
+    with pytest.raises(UserInputError, match=r"codes have shape \(2, 5\)"):
+        trained.detect(torch.zeros(2, 5))
+
+
+def test_load_run_errors_name_what_is_missing(run_dir, tmp_path):
+    import neuralcol
+
+    with pytest.raises(UserInputError, match="no such directory"):
+        neuralcol.load_run(tmp_path / "nowhere")
+    (tmp_path / "foreign").mkdir()
+    with pytest.raises(UserInputError, match=r"config.yaml: missing; .* is not the output directory"):
+        neuralcol.load_run(tmp_path / "foreign")
+    unfinished = tmp_path / "unfinished"
+    shutil.copytree(run_dir, unfinished)
+    (unfinished / "metrics.json").unlink()
+    with pytest.raises(UserInputError, match=r"metrics.json: missing .*finish it by running its command again "
+                                             r"with hydra.run.dir="):
+        neuralcol.load_run(unfinished)
+    (unfinished / "metrics.json").write_text(json.dumps({"autoencoder": {"cache_key": "0"}, "detector": {}}))
+    with pytest.raises(UserInputError, match="latent space is not in the cache"):
+        neuralcol.load_run(unfinished)
+    (unfinished / ".hydra" / "config.yaml").write_text("seed: 0\n")
+    with pytest.raises(UserInputError, match="not a neuralcol run configuration"):
+        neuralcol.load_run(unfinished)
+
+
+def test_readme_first_python_example(run_dir, trained, tmp_path, monkeypatch, capsys):
+    """The README's first ```python block, run as written; only its run directory and mesh path are replaced."""
+    import neuralcol
+
+    code = re.search(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S).group(1)
+    assert len(code.strip().splitlines()) < 10
+    mesh = tmp_path / "8.obj"
+    neuralcol.write_mesh(mesh, trained.decode(_codes(trained, 1, 2))[0], trained.faces)
+    for placeholder, value in (('"outputs/my_run"', repr(str(run_dir))), ('"data/scape/8.obj"', repr(str(mesh)))):
+        assert placeholder in code
+        code = code.replace(placeholder, value)
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code, "README.md", "exec"), {})
+    assert re.match(r"p = [01]\.\d{3}, exact PD -?\d", capsys.readouterr().out)
+    v, f = neuralcol.read_mesh(tmp_path / "8_resolved.obj")
+    assert v.shape == (trained.n_vertices, 3) and np.array_equal(f, trained.faces)
+
+
+def test_handle_cli_on_a_mesh(run_dir, trained, tmp_path, capsys):
+    from experiments.handle import main
+    from neuralcol import write_mesh
+
+    write_mesh(tmp_path / "pose.obj", trained.decode(_codes(trained, 1, 3))[0], trained.faces)
+    main([str(run_dir), str(tmp_path / "pose.obj"), "--out", str(tmp_path / "out"), "--margins", "4"])
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert "PD result" in lines[0] and lines[-1].startswith("pose ")
+    assert (tmp_path / "out" / "pose_resolved.obj").is_file()
+
+
+def _live(trained, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    det = trained.detect(z)
+    return trained.decode(z), det.prob, det.pd
+
+
+@pytest.fixture(scope="module")
+def fresh_codes(trained) -> torch.Tensor:
+    """Codes the export never saw, in a batch size it was not traced with, some outside the box."""
+    z = _codes(trained, 7, 11)
+    z[-1] = trained.space.box_hi + 0.1 * (trained.space.box_hi - trained.space.box_lo)
+    return z
+
+
+def test_export_torchscript_round_trip(run_dir, trained, fresh_codes, tmp_path):
+    from experiments.export import main
+
+    main([str(run_dir), "--format", "torchscript", "--out", str(tmp_path)])
+    doc = json.loads((tmp_path / "manifest.json").read_text())
+    assert doc["decoder"]["output"] == "vertices" and doc["sizes"]["latent_dim"] == trained.dim
+    assert np.array_equal(np.load(tmp_path / "topology.npz")["faces"], trained.faces)
+    decoder, detector = torch.jit.load(str(tmp_path / "decoder.pt")), torch.jit.load(str(tmp_path / "detector.pt"))
+    verts, prob, pd = _live(trained, fresh_codes)
+    with torch.no_grad():
+        torch.testing.assert_close(decoder(fresh_codes), verts, rtol=0, atol=1e-5)
+        got_prob, got_pd = detector(fresh_codes)
+    torch.testing.assert_close(got_prob, prob, rtol=0, atol=1e-5)
+    torch.testing.assert_close(got_pd, pd, rtol=0, atol=1e-5)
+
+
+def test_export_onnx_round_trip(run_dir, trained, fresh_codes, tmp_path):
+    pytest.importorskip("onnx", reason='ONNX export needs onnx: pip install -e ".[export]"')
+    ort = pytest.importorskip("onnxruntime", reason='the ONNX check needs onnxruntime: pip install -e ".[export]"')
+    from experiments.export import main
+
+    main([str(run_dir), "--format", "onnx", "--out", str(tmp_path)])
+    doc = json.loads((tmp_path / "manifest.json").read_text())
+    assert doc["files"] == {"decoder": "decoder.onnx", "detector": "detector.onnx", "topology": "topology.npz"}
+    verts, prob, pd = _live(trained, fresh_codes)
+    feed = {"codes": fresh_codes.numpy()}
+    (got_verts,) = ort.InferenceSession(str(tmp_path / "decoder.onnx")).run(None, feed)
+    got_prob, got_pd = ort.InferenceSession(str(tmp_path / "detector.onnx")).run(["prob", "pd"], feed)
+    np.testing.assert_allclose(got_verts, verts.numpy(), rtol=0, atol=1e-5)
+    np.testing.assert_allclose(got_prob, prob.numpy(), rtol=0, atol=1e-5)
+    np.testing.assert_allclose(got_pd, pd.numpy(), rtol=0, atol=1e-5)
+
+
+def test_export_features_decoder_above_the_dense_limit(run_dir, trained, fresh_codes, tmp_path):
+    """Above --max-dense-vertices the decoder outputs the raw ACAP features; ACAP.decode of them is the mesh."""
+    from experiments.export import main
+
+    main([str(run_dir), "--format", "torchscript", "--out", str(tmp_path), "--max-dense-vertices", "10"])
+    assert json.loads((tmp_path / "manifest.json").read_text())["decoder"]["output"] == "features"
+    with torch.no_grad():
+        feats = torch.jit.load(str(tmp_path / "decoder.pt"))(fresh_codes)
+        torch.testing.assert_close(feats, trained.space.decode_features(fresh_codes), rtol=0, atol=1e-5)
+        torch.testing.assert_close(trained.space.acap.decode(feats), trained.decode(fresh_codes), rtol=0, atol=1e-5)
