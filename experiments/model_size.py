@@ -40,16 +40,21 @@ def main(argv: list[str] | None = None) -> None:
     records = sweep_records(args.sweep)
     doc = choose_from_records(records, args.recon_tol, args.accuracy_tol)
     (args.sweep / "model_size.json").write_text(json.dumps(doc, indent=2))
-    print(f"{'run':>12} {'|Z_0|':>5} {'L2':>3} {'width':>5} {'held-out err':>12} {'params':>8} {'accuracy':>8} "
-          f"{'FNR':>6}")
+    print(f"{'run':>14} {'|Z_0|':>5} {'L2':>3} {'width':>5} {'held-out err':>12} {'params':>8} {'accuracy':>8} "
+          f"{'majority':>8} {'skill':>6} {'FNR':>6}")
     for r in doc["detector"]:
         mark = "  <- chosen" if r["run"] == doc["chosen_run"] else ""
         err = "n/a" if r["val_error"] is None else f"{r['val_error']:.4f}"
-        print(f"{r['run']:>12} {r['n_components']:>5} {r['level2_dim']:>3} {r['detector_width']:>5g} {err:>12} "
-              f"{r['n_parameters']:>8} {r['accuracy']:>8.4f} {r['fnr']:>6.3f}{mark}")
+        maj = "n/a" if r.get("majority_accuracy") is None else f"{r['majority_accuracy']:.4f}"
+        skill = "n/a" if r.get("skill") is None else f"{r['skill']:.3f}"
+        print(f"{r['run']:>14} {r['n_components']:>5} {r['level2_dim']:>3} {r['detector_width']:>5g} {err:>12} "
+              f"{r['n_parameters']:>8} {r['accuracy']:>8.4f} {maj:>8} {skill:>6} {r['fnr']:>6.3f}{mark}")
+    print("(accuracy compares only within one latent space: each has its own U(Z), test set and collision rate; "
+          "skill = (accuracy - majority) / (1 - majority))")
     c = doc["chosen"]
     print(f"chosen: |Z_0| = {c['n_components']}, level 2 = {c['level2_dim']}, detector width x{c['detector_width']:g} "
-          f"(accuracy {doc['chosen_accuracy']:.4f}; best {doc['best_accuracy']:.4f} in {doc['best_run']}) -> "
+          f"(accuracy {doc['chosen_accuracy']:.4f}; best at this latent space {doc['best_accuracy']:.4f} in "
+          f"{doc['best_run']}) -> "
           f"{args.sweep / 'model_size.json'}")
 
 

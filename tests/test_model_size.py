@@ -41,7 +41,7 @@ def test_choose_from_records_compares_detectors_at_the_chosen_latent_only():
             rec("e", 2, 0, 0.05, 500, 0.90)]   # most accurate, but its autoencoder is 5x worse: never chosen
     doc = choose_from_records(recs, 0.1, 0.005)
     assert doc["chosen"] == {"n_components": 4, "level2_dim": 3, "detector_width": 1.0}
-    assert doc["chosen_run"] == "c" and doc["best_run"] == "e"
+    assert doc["chosen_run"] == "c" and doc["best_run"] == "d"   # best: at the chosen latent space
 
 
 def _cfg(tmp_path, *extra):

@@ -74,6 +74,14 @@ def choose_detector(records: list[dict], accuracy_tol: float) -> dict:
     return min(eligible, key=lambda r: (r["n_parameters"], -r["accuracy"]))
 
 
+def _skill(accuracy: float, majority: float | None) -> float | None:
+    """Share of the majority class's errors the detector avoids: ``(acc - maj) / (1 - maj)`` (None if unknown).
+    Accuracy alone does not compare across latent spaces: each has its own U(Z) and collision rate."""
+    if majority is None or majority >= 1.0:
+        return None
+    return (accuracy - float(majority)) / (1.0 - float(majority))
+
+
 def run_record(metrics: dict, name: str) -> dict:
     """The sizes and scores of one finished run (its ``metrics.json``) as a record of the rule."""
     k = int(metrics["latent"]["n_parts"])
@@ -86,6 +94,8 @@ def run_record(metrics: dict, name: str) -> dict:
             "autoencoder_parameters": metrics["autoencoder"].get("n_parameters"),
             "n_parameters": int(det["n_parameters"]), "accuracy": float(last["accuracy"]),
             "fnr": float(last["fnr"]), "dataset_size": int(last["dataset_size"]),
+            "majority_accuracy": last.get("majority_accuracy"),
+            "skill": _skill(float(last["accuracy"]), last.get("majority_accuracy")),
             "inference_us": det.get("inference_us"), "handler_success": h.get("success_rate"),
             "handler_seconds_per_mesh": h.get("seconds_per_mesh"),
             "seconds": float(sum(r.get("label_seconds", 0) + r.get("train_seconds", 0) for r in metrics["rounds"]))}
@@ -100,7 +110,7 @@ def decide(latents: list[dict], records: list[dict], recon_tol: float, accuracy_
         raise ValueError(f"no detector was trained at the chosen latent space |Z_0| = {lat['n_components']}, "
                          f"level 2 = {lat['level2_dim']}")
     det = choose_detector(same, accuracy_tol)
-    best = max(records, key=lambda r: r["accuracy"])
+    best = max(same, key=lambda r: r["accuracy"])  # accuracy compares only within one latent space
     return {"chosen": {"n_components": lat["n_components"], "level2_dim": lat["level2_dim"],
                        "detector_width": det["detector_width"]},
             "chosen_run": det["run"], "chosen_accuracy": det["accuracy"], "chosen_n_parameters": det["n_parameters"],
