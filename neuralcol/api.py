@@ -100,15 +100,17 @@ def check_run_dir(run_dir: Path) -> tuple[DictConfig, dict]:
     return cfg, metrics
 
 
-def load_run(run_dir: str | Path, device: str | torch.device = "cpu", workers: int | None = None,
+def load_run(run_dir: str | Path, device: str | torch.device = "cpu", workers: int | None = 0,
              progress: bool = False) -> TrainedRun:
     """Load a finished run: its config, latent space and final detector.
 
     Args:
         run_dir: output directory of a finished ``python -m experiments.run``.
         device: where the detector and the latent space's network run (the ACAP solve is on the CPU).
-        workers: label worker processes for :meth:`TrainedRun.label` (None: the run's
-            ``labeling.pool.workers``; 0: in this process).
+        workers: label worker processes for :meth:`TrainedRun.label` (0, the default: in this process, which
+            works from notebooks, stdin and scripts alike; N > 0 or None (the run's ``labeling.pool.workers``):
+            worker processes, started by spawning, so a script must call this under
+            ``if __name__ == "__main__":``).
         progress: progress bars while labeling.
 
     Raises:
