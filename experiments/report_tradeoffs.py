@@ -339,6 +339,9 @@ def plot_pareto(points: list[dict], method_order, path: Path) -> None:
                         transform=ax.transAxes)
             else:
                 ax.set_xscale("log")
+                from matplotlib.ticker import NullFormatter
+
+                ax.xaxis.set_minor_formatter(NullFormatter())  # minor log labels overlap on short ranges
                 handles, labels = ax.get_legend_handles_labels()
                 uniq = dict(zip(labels, handles))
                 ax.legend(uniq.values(), uniq.keys(), fontsize=8)
