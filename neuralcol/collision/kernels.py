@@ -89,9 +89,13 @@ def grid_pairs(lo, hi, cell):
 
 
 @njit(cache=True)
-def grid_pairs_active(lo, hi, cell, active, pts, skip2):
-    """Like :func:`grid_pairs`, only the pairs with at least one box marked in ``active`` (F,) bool and whose
-    points ``pts`` (F, 3) are at least ``sqrt(skip2)`` apart (``skip2 < 0``: no such filter)."""
+def _grid_cells(lo, hi, cell):
+    """Boxes ``lo``/``hi`` (F, 3) binned into a uniform grid of ``cell``: one entry per (box, cell) it touches.
+
+    Returns:
+        keys (E,) cell keys in ascending order, ids (E,) the box of each entry, ilo (F, 3) each box's lower
+        cell, dims (3,) cells per axis (key = (x * dims[1] + y) * dims[2] + z).
+    """
     n = lo.shape[0]
     origin = np.empty(3)
     for d in range(3):
@@ -123,6 +127,16 @@ def grid_pairs_active(lo, hi, cell, active, pts, skip2):
     order = np.argsort(keys, kind="quicksort")
     keys = keys[order]
     ids = ids[order]
+    return keys, ids, ilo, dims
+
+
+@njit(cache=True)
+def grid_pairs_active(lo, hi, cell, active, pts, skip2):
+    """Like :func:`grid_pairs`, only the pairs with at least one box marked in ``active`` (F,) bool and whose
+    points ``pts`` (F, 3) are at least ``sqrt(skip2)`` apart (``skip2 < 0``: no such filter)."""
+    n = lo.shape[0]
+    keys, ids, ilo, dims = _grid_cells(lo, hi, cell)
+    total = keys.shape[0]
     cap = max(16, 8 * n)
     out = np.empty((cap, 2), dtype=np.int64)
     m = 0
@@ -1197,36 +1211,8 @@ def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, 
         n_pairs (counted), rec_key, rec_int, n_rec.
     """
     n = lo.shape[0]
-    origin = np.empty(3)
-    for d in range(3):
-        origin[d] = lo[:, d].min()
-    inv_cell = 1.0 / cell
-    ilo = np.empty((n, 3), dtype=np.int64)
-    ihi = np.empty((n, 3), dtype=np.int64)
-    total = 0
-    for f in range(n):
-        cnt = 1
-        for d in range(3):
-            ilo[f, d] = int((lo[f, d] - origin[d]) * inv_cell)
-            ihi[f, d] = int((hi[f, d] - origin[d]) * inv_cell)
-            cnt *= ihi[f, d] - ilo[f, d] + 1
-        total += cnt
-    dims = np.empty(3, dtype=np.int64)
-    for d in range(3):
-        dims[d] = ihi[:, d].max() + 1
-    keys = np.empty(total, dtype=np.int64)
-    ids = np.empty(total, dtype=np.int64)
-    k = 0
-    for f in range(n):
-        for x in range(ilo[f, 0], ihi[f, 0] + 1):
-            for y in range(ilo[f, 1], ihi[f, 1] + 1):
-                for z in range(ilo[f, 2], ihi[f, 2] + 1):
-                    keys[k] = (x * dims[1] + y) * dims[2] + z
-                    ids[k] = f
-                    k += 1
-    order = np.argsort(keys, kind="quicksort")
-    keys = keys[order]
-    ids = ids[order]
+    keys, ids, ilo, dims = _grid_cells(lo, hi, cell)
+    total = keys.shape[0]
     # entries in cell order, each cell's entries sorted by their box's lower x (insertion sort: cells are
     # small), copied contiguously; a sweep along x stops at the first entry that starts beyond the box's end
     s_lo = np.empty((total, 3))
