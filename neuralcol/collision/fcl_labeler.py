@@ -70,7 +70,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from neuralcol.collision.labeler import Label, Labels, split_subsets
+from neuralcol.collision.labeler import Label, Labels, checked_partition, split_subsets
 from neuralcol.geometry.topology import edge_topology
 
 METHODS = ("broadphase", "bvh", "grid")
@@ -225,14 +225,7 @@ class FCLLabeler:
     # ------------------------------------------------------------------ configuration
     def set_partition(self, partition) -> None:
         """Set the vertex partition (V,) int in [0, K) used for PD_i (None: one part); rebuilds the patches."""
-        if partition is None:
-            part = np.zeros(self.n_vertices, dtype=np.int64)
-        else:
-            part = np.asarray(partition, dtype=np.int64).reshape(-1)
-            if part.shape != (self.n_vertices,):
-                raise ValueError(f"partition has shape {part.shape}, expected ({self.n_vertices},)")
-            if part.min() < 0:
-                raise ValueError("partition entries must be >= 0")
+        part = checked_partition(partition, self.n_vertices)
         self.partition = part
         self.n_parts = int(part.max()) + 1
         self._tri_part = part[self.faces]  # (F, 3) part of each corner

@@ -123,6 +123,18 @@ def split_subsets(pd: np.ndarray, eps: float) -> np.ndarray:
     return out
 
 
+
+def checked_partition(partition, n_vertices: int) -> np.ndarray:
+    """The vertex partition as (V,) int64 in [0, K) (None: one part, all zeros); ValueError if malformed."""
+    if partition is None:
+        return np.zeros(n_vertices, dtype=np.int64)
+    part = np.asarray(partition, dtype=np.int64).reshape(-1)
+    if part.shape != (n_vertices,):
+        raise ValueError(f"partition has shape {part.shape}, expected ({n_vertices},)")
+    if part.min() < 0:
+        raise ValueError("partition entries must be >= 0")
+    return part
+
 class ExactLabeler:
     """Exact self-collision labels for meshes of one topology (see the module docstring).
 
@@ -191,14 +203,7 @@ class ExactLabeler:
     # ------------------------------------------------------------------ configuration
     def set_partition(self, partition) -> None:
         """Set the vertex partition (V,) int in [0, K) used for PD_i (None: one part)."""
-        if partition is None:
-            part = np.zeros(self.n_vertices, dtype=np.int64)
-        else:
-            part = np.asarray(partition, dtype=np.int64).reshape(-1)
-            if part.shape != (self.n_vertices,):
-                raise ValueError(f"partition has shape {part.shape}, expected ({self.n_vertices},)")
-            if part.min() < 0:
-                raise ValueError("partition entries must be >= 0")
+        part = checked_partition(partition, self.n_vertices)
         self.partition = part
         self.n_parts = int(part.max()) + 1
         self._tri_part = part[self.faces]  # (F, 3) part of each corner
