@@ -245,6 +245,14 @@ class _Batch:
         self.failures[int(i)] = reason
         self.bar.update(1)
 
+    def give_up(self, queues, reason: str) -> None:
+        """Report every mesh of the tasks still in ``queues`` (deques of _Task) as failed and empty them."""
+        for q in queues:
+            for task in q:
+                for i in task.idx:
+                    self.fail(int(i), reason)
+            q.clear()
+
     def settle(self, task: _Task, out: list[Label | str]) -> list[_Task]:
         """Record a task's result; returns the retries (meshes that raised for the first time, each alone)."""
         retry = []
@@ -617,11 +625,7 @@ class LabelPool:
             if restarts > self.max_restarts and (normal or suspects):
                 why = (f"not labelled: the worker processes were restarted {restarts} times in one call "
                        f"(max_restarts={self.max_restarts}; last: {reason})")
-                for task in [*normal, *suspects]:
-                    for i in task.idx:
-                        batch.fail(int(i), why)
-                normal.clear()
-                suspects.clear()
+                batch.give_up((normal, suspects), why)
 
         try:
             while normal or suspects or in_flight:

@@ -255,11 +255,7 @@ def run_dask(pool, session: DaskSession, v: np.ndarray, tasks: list[_Task], batc
         if restarts > pool.max_restarts and (normal or suspects):
             why = (f"not labelled: dask gave up on or restarted workers for {restarts} chunks in one call "
                    f"(max_restarts={pool.max_restarts}; last: {reason})")
-            for task in [*normal, *suspects]:
-                for i in task.idx:
-                    batch.fail(int(i), why)
-            normal.clear()
-            suspects.clear()
+            batch.give_up((normal, suspects), why)
 
     def lost(task: _Task, reason: str) -> None:
         """A chunk killed its workers or hung: a suspect alone is the culprit, the others are relabelled alone."""
