@@ -1,4 +1,5 @@
-"""An exact labeler with injected faults, for the LabelPool fault tests (tests/test_pool_faults.py).
+"""An exact labeler with injected faults, and the two-spheres meshes, for the LabelPool fault tests
+(tests/test_pool_faults.py, tests/test_pool_dask.py).
 
 A module of its own (not the test file) so the pool's spawned worker processes can unpickle the labeler by
 importing it (``tests/`` is on ``sys.path`` under pytest, and spawn passes ``sys.path`` to the children).
@@ -66,3 +67,12 @@ class FaultLabeler(ExactLabeler):
                 _seen_flaky.add(key)
                 raise RuntimeError("transient failure (injected fault)")
         return super().label(v)
+
+
+def two_spheres(offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit icospheres (subdivisions=1, 42 vertices each), the second shifted by ``offset`` along x."""
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=1)
+    v, f = np.asarray(s.vertices, np.float64), np.asarray(s.faces, np.int64)
+    return np.concatenate([v, v + [offset, 0.0, 0.0]]), np.concatenate([f, f + len(v)])

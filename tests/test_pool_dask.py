@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fault_labelers import EXIT, EXIT_ONCE, HANG, NAN, RAISE, FaultLabeler, mark
+from fault_labelers import EXIT, EXIT_ONCE, HANG, NAN, RAISE, FaultLabeler, mark, two_spheres
 from omegaconf import OmegaConf
 
 distributed = pytest.importorskip(
@@ -29,15 +29,6 @@ from neuralcol.collision.pool import LabelPool  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 OFFSETS = [1.5, 2.6, 1.9, 3.0, 1.2, 2.05, 1.99, 4.0, 1.7, 2.3, 1.1, 2.8]  # overlapping (< 2) and free (> 2)
-
-
-def two_spheres(offset: float) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit icospheres (subdivisions=1, 42 vertices each), the second shifted by ``offset`` along x."""
-    import trimesh
-
-    s = trimesh.creation.icosphere(subdivisions=1)
-    v, f = np.asarray(s.vertices, np.float64), np.asarray(s.faces, np.int64)
-    return np.concatenate([v, v + [offset, 0.0, 0.0]]), np.concatenate([f, f + len(v)])
 
 
 @pytest.fixture(scope="module")

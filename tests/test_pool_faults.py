@@ -15,8 +15,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 import torch
-import trimesh
-from fault_labelers import EXIT, FLAKY, HANG, NAN, RAISE, FaultLabeler, mark
+from fault_labelers import EXIT, FLAKY, HANG, NAN, RAISE, FaultLabeler, mark, two_spheres
 
 from neuralcol.active.acquisition import Acquired, UniformAcquisition, _concat
 from neuralcol.active.oracle import LatentOracle
@@ -26,13 +25,6 @@ from neuralcol.data.collision_store import CollisionStore
 from neuralcol.data.uniform_samples import labeled_uniform_rows, uniform_codes, uniform_rows
 
 OFFSETS = [1.5, 2.6, 1.9, 3.0, 1.2, 2.05, 1.99, 4.0]  # overlapping (< 2) and free (> 2)
-
-
-def two_spheres(offset: float) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit icospheres (subdivisions=1, 42 vertices each), the second shifted by ``offset`` along x."""
-    s = trimesh.creation.icosphere(subdivisions=1)
-    v, f = np.asarray(s.vertices, np.float64), np.asarray(s.faces, np.int64)
-    return np.concatenate([v, v + [offset, 0.0, 0.0]]), np.concatenate([f, f + len(v)])
 
 
 @pytest.fixture(scope="module")
