@@ -1,10 +1,10 @@
 """Apply the model-size rule to a size sweep: ``python -m experiments.model_size SWEEP_DIR [--recon-tol 0.1]
-[--accuracy-tol 0.005]``.
+[--accuracy-tol 0.005] [--latent-rule tolerance|knee]``.
 
 A size sweep is a Hydra multirun over ``dataset.latent.n_components``, ``dataset.latent.level2_dim`` and
 ``detector.net.width`` (``experiment=size_<dataset>``). The rule of ``model_size=auto``
 (:mod:`neuralcol.stages.model_size`) picks the smallest latent space within ``recon-tol`` of the best held-out
-reconstruction, then the smallest detector within ``accuracy-tol`` of the best accuracy at that latent space. It
+reconstruction (``--latent-rule knee``: the knee of the held-out error against the latent size), then the smallest detector within ``accuracy-tol`` of the best accuracy at that latent space. It
 writes ``SWEEP_DIR/model_size.json`` (read by ``experiments.report`` to mark the chosen point on the Pareto chart)
 and prints every run's sizes and scores.
 """
@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from neuralcol.errors import UserInputError
-from neuralcol.stages.model_size import choose_from_records, run_record
+from neuralcol.stages.model_size import LATENT_RULES, choose_from_records, run_record
 from neuralcol.utils.cli import report_user_errors
 
 
@@ -36,9 +36,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("sweep", type=Path)
     ap.add_argument("--recon-tol", type=float, default=0.1, help="relative tolerance on held-out mesh error")
     ap.add_argument("--accuracy-tol", type=float, default=0.005, help="absolute tolerance on test accuracy")
+    ap.add_argument("--latent-rule", choices=LATENT_RULES, default="tolerance",
+                    help="tolerance: smallest latent space within --recon-tol of the best held-out error; knee: the "
+                         "knee of the held-out error against log2 of the latent size")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
     records = sweep_records(args.sweep)
-    doc = choose_from_records(records, args.recon_tol, args.accuracy_tol)
+    doc = choose_from_records(records, args.recon_tol, args.accuracy_tol, args.latent_rule)
     (args.sweep / "model_size.json").write_text(json.dumps(doc, indent=2))
     print(f"{'run':>14} {'|Z_0|':>5} {'L2':>3} {'width':>5} {'held-out err':>12} {'params':>8} {'accuracy':>8} "
           f"{'majority':>8} {'skill':>6} {'FNR':>6}")

@@ -7,7 +7,14 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from neuralcol.errors import UserInputError
-from neuralcol.stages.model_size import choose_detector, choose_from_records, choose_latent, validate_model_size
+from neuralcol.stages.model_size import (
+    choose_detector,
+    choose_from_records,
+    choose_latent,
+    error_envelope,
+    knee_latent,
+    validate_model_size,
+)
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 
@@ -22,6 +29,35 @@ def test_choose_latent_smallest_within_relative_tolerance():
     assert choose_latent(recs, 0.2)["level2_dim"] == 1         # 8 x (1 + 1) = 16 entries now eligible
     with pytest.raises(ValueError, match="held-out"):
         choose_latent([{"n_components": 2, "level2_dim": 0, "val_error": None}], 0.1)
+
+
+def _lat(k, l2, err):
+    return {"n_components": k, "level2_dim": l2, "val_error": err}
+
+
+def test_error_envelope_is_the_best_error_with_at_most_d_entries():
+    recs = [_lat(2, 0, 0.030), _lat(4, 0, 0.020), _lat(2, 1, 0.025),   # dim 4: 0.020 (K4 L0), not 0.025
+            _lat(4, 1, 0.022),                                          # dim 8, worse than dim 4: envelope keeps 0.020
+            _lat(8, 1, 0.010)]                                          # dim 16
+    env = error_envelope(recs)
+    assert [(d, e) for d, e, _ in env] == [(2, 0.030), (4, 0.020), (8, 0.020), (16, 0.010)]
+    assert env[2][2]["n_components"] == 4 and env[2][2]["level2_dim"] == 0   # the smaller candidate reaching it
+
+
+def test_knee_rule_picks_where_doubling_the_latent_space_stops_paying():
+    # error halves with each doubling up to 8 entries, then barely moves: the knee is at 8 entries
+    recs = [_lat(2, 0, 0.040), _lat(4, 0, 0.020), _lat(8, 0, 0.010), _lat(8, 1, 0.0095), _lat(8, 3, 0.0090),
+            _lat(8, 7, 0.0086)]
+    assert knee_latent(recs)["n_components"] == 8 and knee_latent(recs)["level2_dim"] == 0
+    assert choose_latent(recs, 0.1, "knee")["level2_dim"] == 0
+    assert choose_latent(recs, 0.1, "tolerance")["level2_dim"] == 3   # 0.0090 <= 1.1 x 0.0086; 0.0095 is not
+    # a straight line in log2(d) has no knee: the tolerance rule decides
+    line = [_lat(2, 0, 0.04), _lat(4, 0, 0.03), _lat(8, 0, 0.02), _lat(16, 0, 0.01)]
+    assert knee_latent(line) is None
+    assert choose_latent(line, 0.1, "knee") == choose_latent(line, 0.1, "tolerance")
+    assert knee_latent(recs[:2]) is None   # two sizes: no curve
+    with pytest.raises(ValueError, match="rule"):
+        choose_latent(recs, 0.1, "smallest")
 
 
 def test_choose_detector_fewest_parameters_within_absolute_tolerance():
@@ -55,7 +91,7 @@ def _cfg(tmp_path, *extra):
 def test_validate_model_size(tmp_path):
     validate_model_size(_cfg(tmp_path))  # fixed: nothing to check
     for bad, match in (("model_size.width=[]", "model_size.width"), ("model_size.level2_dim=[-1]", "level2_dim"),
-                       ("model_size.accuracy_tol=-1", "accuracy_tol")):
+                       ("model_size.accuracy_tol=-1", "accuracy_tol"), ("model_size.latent_rule=best", "latent_rule")):
         with pytest.raises(UserInputError, match=match):
             validate_model_size(_cfg(tmp_path, "model_size=auto", bad))
 

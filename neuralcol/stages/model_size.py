@@ -24,9 +24,11 @@ import itertools
 import json
 import math
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from neuralcol.errors import UserInputError
@@ -37,20 +39,75 @@ def latent_dim(n_components: int, level2_dim: int) -> int:
     return int(n_components) * (1 + int(level2_dim))
 
 
-def choose_latent(records: list[dict], recon_tol: float) -> dict:
+LATENT_RULES = ("tolerance", "knee")
+
+
+def error_envelope(records: list[dict]) -> list[tuple[int, float, dict]]:
+    """The best held-out error reachable with at most ``d`` latent entries, for each candidate size ``d``:
+    ``[(d, error, record), ...]`` by increasing ``d``; ``record`` is the smallest candidate reaching ``error``."""
+    ok = sorted((r for r in records if r.get("val_error") is not None and math.isfinite(r["val_error"])),
+                key=lambda r: (latent_dim(r["n_components"], r["level2_dim"]), r["val_error"]))
+    out: list[tuple[int, float, dict]] = []
+    for r in ok:
+        d = latent_dim(r["n_components"], r["level2_dim"])
+        best = out[-1] if out else None
+        if best is not None and best[0] == d:
+            continue  # sorted by error within one size: the first is that size's best
+        if best is None or r["val_error"] < best[1]:
+            out.append((d, float(r["val_error"]), r))
+        else:
+            out.append((d, best[1], best[2]))
+    return out
+
+
+def knee_latent(records: list[dict], sensitivity: float = 1.0) -> dict | None:
+    """The knee of the held-out error against the latent size (Kneedle, Satopaa et al. 2011; the ``kneed``
+    package), or None if the curve has none.
+
+    The curve is :func:`error_envelope` (the best error reachable with at most d entries) against log2(d): the
+    candidate sizes double, and each doubling of the latent space should buy about as much as the last one to be
+    worth it. The knee is where the gains start to shrink: the latent space a scene needs. Returns the smallest
+    candidate reaching the envelope's error at the knee.
+    """
+    env = error_envelope(records)
+    if len(env) < 3:
+        return None
+    x = np.log2([d for d, _, _ in env])
+    y = np.array([e for _, e, _ in env])
+    if np.ptp(y) == 0:
+        return None
+    from kneed import KneeLocator
+
+    with warnings.catch_warnings():  # kneed warns when there is no knee; None says the same
+        warnings.simplefilter("ignore")
+        knee = KneeLocator(x, y, S=sensitivity, curve="convex", direction="decreasing").knee
+    if knee is None:
+        return None
+    return next(rec for xi, (_, _, rec) in zip(x, env, strict=True) if abs(xi - float(knee)) < 1e-9)
+
+
+def choose_latent(records: list[dict], recon_tol: float, rule: str = "tolerance") -> dict:
     """The smallest latent space nearly as good as the best.
 
     Args:
         records: one per candidate, with ``n_components``, ``level2_dim`` and ``val_error`` (mean vertex error of
             the held-out meshes; lower is better).
         recon_tol: relative tolerance: eligible if ``val_error <= (1 + recon_tol) * best``.
+        rule: ``tolerance`` (issue 17's rule: the smallest within ``recon_tol`` of the best) or ``knee`` (the
+            knee of the error curve, :func:`knee_latent`; the tolerance rule where the curve has no knee).
 
     Returns:
         the chosen record.
     """
+    if rule not in LATENT_RULES:
+        raise ValueError(f"choose_latent: rule={rule!r}, use one of {LATENT_RULES}")
     ok = [r for r in records if r.get("val_error") is not None and math.isfinite(r["val_error"])]
     if not ok:
         raise ValueError("choose_latent: no candidate has a finite held-out reconstruction error")
+    if rule == "knee":
+        knee = knee_latent(ok)
+        if knee is not None:
+            return knee
     best = min(r["val_error"] for r in ok)
     eligible = [r for r in ok if r["val_error"] <= (1.0 + recon_tol) * best]
     return min(eligible, key=lambda r: (latent_dim(r["n_components"], r["level2_dim"]), r["val_error"]))
@@ -101,10 +158,12 @@ def run_record(metrics: dict, name: str) -> dict:
             "seconds": float(sum(r.get("label_seconds", 0) + r.get("train_seconds", 0) for r in metrics["rounds"]))}
 
 
-def decide(latents: list[dict], records: list[dict], recon_tol: float, accuracy_tol: float) -> dict:
+def decide(latents: list[dict], records: list[dict], recon_tol: float, accuracy_tol: float,
+           latent_rule: str = "tolerance") -> dict:
     """The rule (module docstring) on latent records and detector records (:func:`run_record`; only those at the
     chosen latent space compete): ``model_size.json``'s content."""
-    lat = choose_latent(latents, recon_tol)
+    lat = choose_latent(latents, recon_tol, latent_rule)
+    knee = knee_latent(latents) if latent_rule == "knee" else None
     same = [r for r in records if (r["n_components"], r["level2_dim"]) == (lat["n_components"], lat["level2_dim"])]
     if not same:
         raise ValueError(f"no detector was trained at the chosen latent space |Z_0| = {lat['n_components']}, "
@@ -115,18 +174,20 @@ def decide(latents: list[dict], records: list[dict], recon_tol: float, accuracy_
                        "detector_width": det["detector_width"]},
             "chosen_run": det["run"], "chosen_accuracy": det["accuracy"], "chosen_n_parameters": det["n_parameters"],
             "best_run": best["run"], "best_accuracy": best["accuracy"],
-            "rule": {"recon_tol": recon_tol, "accuracy_tol": accuracy_tol},
+            "rule": {"latent_rule": latent_rule, "recon_tol": recon_tol, "accuracy_tol": accuracy_tol,
+                     **({"knee_found": knee is not None} if latent_rule == "knee" else {})},
             "latent": sorted(latents, key=lambda r: (latent_dim(r["n_components"], r["level2_dim"]), r["val_error"])),
             "detector": sorted(records, key=lambda r: (r["latent_dim"], r["n_parameters"]))}
 
 
-def choose_from_records(records: list[dict], recon_tol: float, accuracy_tol: float) -> dict:
+def choose_from_records(records: list[dict], recon_tol: float, accuracy_tol: float,
+                        latent_rule: str = "tolerance") -> dict:
     """The rule on the runs of a full size sweep (records of :func:`run_record`; runs of one latent space share
     its autoencoder, hence its reconstruction error)."""
     latents = {}
     for r in records:
         latents.setdefault((r["n_components"], r["level2_dim"]), r)
-    return decide(list(latents.values()), records, recon_tol, accuracy_tol)
+    return decide(list(latents.values()), records, recon_tol, accuracy_tol, latent_rule)
 
 
 def _set(cfg: DictConfig, dotted: dict) -> DictConfig:
@@ -169,7 +230,7 @@ def search_model_size(cfg: DictConfig, run_dir: Path, ds, feats, run_fn: Callabl
                             "train_seconds": rep.get("train_seconds")})
             print(f"model_size: |Z_0| = {k}, level 2 = {l2}: held-out vertex error {rep.get('val_mean_vertex_error')}"
                   f"{' (cached)' if cached else ''}", flush=True)
-        lat = choose_latent(latents, float(ms.recon_tol))
+        lat = choose_latent(latents, float(ms.recon_tol), str(ms.latent_rule))
         budget = ms.budget if ms.budget is not None else \
             int(cfg.detector.n_init) + int(cfg.detector.max_rounds) * int(cfg.detector.n_aug)
         records = []
@@ -187,7 +248,8 @@ def search_model_size(cfg: DictConfig, run_dir: Path, ds, feats, run_fn: Callabl
             records.append(run_record(metrics, name))
             print(f"model_size: detector width x{float(w):g}: {records[-1]['n_parameters']} parameters, "
                   f"accuracy {records[-1]['accuracy']:.4f} at {budget} samples", flush=True)
-        doc = {**decide(latents, records, float(ms.recon_tol), float(ms.accuracy_tol)), "budget": int(budget),
+        doc = {**decide(latents, records, float(ms.recon_tol), float(ms.accuracy_tol), str(ms.latent_rule)),
+               "budget": int(budget),
                "default": {"n_components": int(cfg.dataset.latent.n_components),
                            "level2_dim": int(cfg.dataset.latent.level2_dim),
                            "detector_width": float(cfg.detector.net.width)},
@@ -217,6 +279,10 @@ def validate_model_size(cfg: DictConfig) -> None:
     widths = list(ms.width)
     if not widths or any(float(w) <= 0 for w in widths):
         raise UserInputError(f"model_size.width={widths}: a non-empty list of multipliers > 0")
+    if ms.latent_rule not in LATENT_RULES:
+        raise UserInputError(f"model_size.latent_rule={ms.latent_rule!r}: use tolerance (the smallest latent space "
+                             "within recon_tol of the best held-out error) or knee (the knee of that error against "
+                             "the latent size)")
     for key in ("recon_tol", "accuracy_tol"):
         if float(ms[key]) < 0:
             raise UserInputError(f"model_size.{key}={ms[key]}: must be >= 0")
