@@ -5,7 +5,8 @@ A size sweep is a Hydra multirun over ``dataset.latent.n_components``, ``dataset
 ``detector.net.width`` (``experiment=size_<dataset>``). The rule of ``model_size=auto``
 (:mod:`neuralcol.stages.model_size`) picks the smallest latent space within ``recon-tol`` of the best held-out
 reconstruction (``--latent-rule knee``: the knee of the held-out error against the latent size), then the
-smallest detector within ``accuracy-tol`` of the best accuracy at that latent space. It writes ``SWEEP_DIR/model_size.json`` (read by ``experiments.report`` to mark the chosen point on the Pareto chart)
+smallest detector within ``accuracy-tol`` of the best accuracy at that latent space. It writes
+``SWEEP_DIR/model_size.json`` (read by ``experiments.report`` to mark the chosen point on the Pareto chart)
 and prints every run's sizes and scores.
 """
 
