@@ -16,6 +16,7 @@ import os
 import platform
 import statistics
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -375,6 +376,15 @@ def bench_neural(ctx: dict) -> dict:
     out["neural_vs_exact_speedup"] = _ratio(out["exact_ms_per_sample"],
                                             {k: (v / 1e3 if k != "reps" else v)
                                              for k, v in out["detector_us_per_sample_b4096"].items()})
+    # the same detector exported to ONNX and run by ONNX Runtime (experiments.export), same codes and threads
+    with tempfile.TemporaryDirectory() as tmp:
+        ort_run = _onnx_detector(run, Path(tmp))
+        if ort_run is not None:
+            out["detector_onnx_us_per_sample_b4096"] = summarize(repeat(lambda: ort_run(z), reps * 3, warmup=2),
+                                                                 1e6 / len(z))
+            out["neural_vs_exact_speedup_onnx"] = _ratio(
+                out["exact_ms_per_sample"], {k: (v / 1e3 if k != "reps" else v)
+                                             for k, v in out["detector_onnx_us_per_sample_b4096"].items()})
     # Newton projection onto the 0.5 level set (float64, as in active learning), batched
     newton_cfg = dict(cfg.detector.newton)
     net64 = copy.deepcopy(net).double().eval()
@@ -410,17 +420,33 @@ def bench_neural(ctx: dict) -> dict:
     where = run_dir.relative_to(ROOT) if run_dir.is_relative_to(ROOT) else run_dir
     ctx["notes"]["neural"] = (f"detector and latent space of {where}; "
                               f"exact reference: decode + full label of {n_exact} uniform codes on one core; "
+                              f"detector: {torch.get_num_threads()} threads, torch and ONNX Runtime (`_onnx` keys); "
                               f"handler: {len(colliding)} codes the detector calls colliding, batch "
                               f"{int(handler_cfg.batch_size)}, conf/handler/default.yaml settings, detector only "
                               "(no verification)")
     return out
 
 
+def _onnx_detector(run, tmp: Path):
+    """The run's detector exported to ONNX under ``tmp`` and loaded into ONNX Runtime with torch's thread count:
+    a callable codes -> outputs, or None when onnx / onnxruntime are not installed."""
+    try:
+        import onnx  # noqa: F401
+        import onnxruntime as ort
+    except ImportError:
+        return None
+    from experiments.export import export_run
+
+    export_run(run, tmp / "onnx", "onnx")
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = torch.get_num_threads()
+    sess = ort.InferenceSession(str(tmp / "onnx" / "detector.onnx"), opts)
+    return lambda z: sess.run(None, {"codes": z.numpy()})
+
+
 def bench_export(ctx: dict) -> dict:
     """The detector exported by ``experiments.export`` (TorchScript; ONNX Runtime when installed) next to the live
     module, µs per sample at batch 4096, on the same codes."""
-    import tempfile
-
     from experiments.export import export_run
     from neuralcol import load_run
 
@@ -432,32 +458,19 @@ def bench_export(ctx: dict) -> dict:
     with torch.no_grad():
         out["export_live_detector_us_b4096"] = summarize(repeat(lambda: run.detector(z), reps, warmup=2),
                                                          1e6 / len(z))
-    formats = ["torchscript"]
-    try:
-        import onnx  # noqa: F401
-        import onnxruntime as ort
-
-        formats.append("onnx")
-    except ImportError:
-        ort = None
     with tempfile.TemporaryDirectory() as tmp:
-        for fmt in formats:
-            export_run(run, Path(tmp) / fmt, fmt)
-            if fmt == "torchscript":
-                module = torch.jit.load(str(Path(tmp) / fmt / "detector.pt"))
-                with torch.no_grad():
-                    times = repeat(lambda m=module: m(z), reps, warmup=2)
-            else:
-                opts = ort.SessionOptions()
-                opts.intra_op_num_threads = torch.get_num_threads()
-                sess = ort.InferenceSession(str(Path(tmp) / fmt / "detector.onnx"), opts)
-                feed = {"codes": z.numpy()}
-                times = repeat(lambda s=sess, f=feed: s.run(None, f), reps, warmup=2)
-            out[f"export_{fmt}_detector_us_b4096"] = summarize(times, 1e6 / len(z))
+        export_run(run, Path(tmp) / "torchscript", "torchscript")
+        module = torch.jit.load(str(Path(tmp) / "torchscript" / "detector.pt"))
+        with torch.no_grad():
+            out["export_torchscript_detector_us_b4096"] = summarize(repeat(lambda: module(z), reps, warmup=2),
+                                                                    1e6 / len(z))
+        ort_run = _onnx_detector(run, Path(tmp))
+        if ort_run is not None:
+            out["export_onnx_detector_us_b4096"] = summarize(repeat(lambda: ort_run(z), reps, warmup=2), 1e6 / len(z))
     where = run_dir.relative_to(ROOT) if run_dir.is_relative_to(ROOT) else run_dir
     ctx["notes"]["export"] = (f"detector of {where} (outputs prob and the PD estimate), 4096 uniform codes per call, "
                               f"{torch.get_num_threads()} threads (ONNX Runtime intra-op threads the same)"
-                              + ("" if ort is not None else "; onnxruntime not installed: ONNX not measured"))
+                              + ("" if ort_run is not None else "; onnxruntime not installed: ONNX not measured"))
     run.close()
     return out
 
@@ -474,8 +487,6 @@ def bench_training(ctx: dict) -> dict:
 
     Each is timed at two epoch counts; the per-epoch figure is the slope, so set-up costs (Trainer, data,
     partition) cancel."""
-    import tempfile
-
     from lightning.pytorch import Trainer
 
     from neuralcol.data.collision_datamodule import CollisionDataModule
@@ -560,7 +571,6 @@ def _tree_rss_mb(pid: int) -> float:
 def bench_memory(ctx: dict) -> dict:
     """Peak resident memory (this process + its 2 workers) while labeling decoded SCAPE samples, and the size
     of the HDF5 D_c per 10 000 rows."""
-    import tempfile
     import threading
 
     from hydra.utils import instantiate
