@@ -116,6 +116,13 @@ def test_auto_search_end_to_end(tmp_path, capsys):
     best_acc = max(r["accuracy"] for r in doc["detector"])
     chosen = next(r for r in doc["detector"] if r["detector_width"] == c["detector_width"])
     assert chosen["accuracy"] >= best_acc - 0.005
+    # each width's sub-run is a run directory of its own: the Python API opens it with its sizes
+    from neuralcol import load_run
+
+    sub = load_run(tmp_path / "run" / "model_size" / "width_0.5")
+    assert sub.cfg.detector.net.width == 0.5 and sub.cfg.detector.max_rounds == 0
+    assert sub.detect(sub.space.sample(3)).prob.shape == (3,)
+    sub.close()
     # the run went on with the chosen sizes
     assert metrics["model_size"]["chosen"] == c
     assert metrics["latent"]["n_parts"] == c["n_components"]

@@ -244,6 +244,10 @@ def search_model_size(cfg: DictConfig, run_dir: Path, ds, feats, run_fn: Callabl
             name = f"width_{float(w):g}"
             sub_dir = out_dir / name
             done = sub_dir / "metrics.json"
+            # the sub-run's own config, as Hydra writes it for a run: neuralcol.load_run (and the bench, export,
+            # handle CLIs) can open a width's sub-run like any run directory
+            (sub_dir / ".hydra").mkdir(parents=True, exist_ok=True)
+            OmegaConf.save(sub, sub_dir / ".hydra" / "config.yaml")
             metrics = json.loads(done.read_text()) if done.is_file() else run_fn(sub, sub_dir)
             records.append(run_record(metrics, name))
             print(f"model_size: detector width x{float(w):g}: {records[-1]['n_parameters']} parameters, "
