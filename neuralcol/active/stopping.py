@@ -7,19 +7,26 @@ import warnings
 import numpy as np
 
 
-def accuracy_elbow(sizes, accuracies, sensitivity: float = 1.0) -> float | None:
-    """The data set size at the elbow of the (increasing, concave) accuracy curve, by Kneedle
-    (Satopaa et al. 2011, the ``kneed`` package), or None if the curve has none (yet)."""
-    x = np.asarray(sizes, float)
-    y = np.asarray(accuracies, float)
+def kneedle(x, y, curve: str, direction: str, sensitivity: float = 1.0) -> float | None:
+    """The x of the knee of the curve (x, y) by Kneedle (Satopaa et al. 2011, the ``kneed`` package), or None if
+    it has none: fewer than 3 points, a non-finite or flat y, or no knee found. ``curve``: concave | convex;
+    ``direction``: increasing | decreasing (as ``kneed.KneeLocator``)."""
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
     if len(x) < 3 or not np.isfinite(y).all() or np.ptp(y) == 0:
         return None
     from kneed import KneeLocator
 
     with warnings.catch_warnings():  # kneed warns when no knee is found; None says the same
         warnings.simplefilter("ignore")
-        knee = KneeLocator(x, y, S=sensitivity, curve="concave", direction="increasing").knee
+        knee = KneeLocator(x, y, S=sensitivity, curve=curve, direction=direction).knee
     return None if knee is None else float(knee)
+
+
+def accuracy_elbow(sizes, accuracies, sensitivity: float = 1.0) -> float | None:
+    """The data set size at the elbow of the (increasing, concave) accuracy curve, or None if the curve has none
+    (yet): :func:`kneedle`."""
+    return kneedle(sizes, accuracies, "concave", "increasing", sensitivity)
 
 
 def should_stop(sizes, accuracies, min_points: int, sensitivity: float = 1.0) -> tuple[bool, float | None]:

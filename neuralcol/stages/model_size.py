@@ -24,13 +24,13 @@ import itertools
 import json
 import math
 import time
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from neuralcol.active.stopping import kneedle
 from neuralcol.errors import UserInputError
 
 
@@ -70,20 +70,11 @@ def knee_latent(records: list[dict], sensitivity: float = 1.0) -> dict | None:
     candidate reaching the envelope's error at the knee.
     """
     env = error_envelope(records)
-    if len(env) < 3:
-        return None
-    x = np.log2([d for d, _, _ in env])
-    y = np.array([e for _, e, _ in env])
-    if np.ptp(y) == 0:
-        return None
-    from kneed import KneeLocator
-
-    with warnings.catch_warnings():  # kneed warns when there is no knee; None says the same
-        warnings.simplefilter("ignore")
-        knee = KneeLocator(x, y, S=sensitivity, curve="convex", direction="decreasing").knee
+    x = np.log2([d for d, _, _ in env]) if env else np.empty(0)
+    knee = kneedle(x, [e for _, e, _ in env], "convex", "decreasing", sensitivity)
     if knee is None:
         return None
-    return next(rec for xi, (_, _, rec) in zip(x, env, strict=True) if abs(xi - float(knee)) < 1e-9)
+    return next(rec for xi, (_, _, rec) in zip(x, env, strict=True) if abs(xi - knee) < 1e-9)
 
 
 def choose_latent(records: list[dict], recon_tol: float, rule: str = "tolerance") -> dict:
