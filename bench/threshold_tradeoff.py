@@ -46,7 +46,7 @@ def tradeoff(prob: np.ndarray, collides: np.ndarray, thresholds=THRESHOLDS) -> l
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("sweep", type=Path, help="sweep directory with one finished run per subdirectory")
+    ap.add_argument("sweep", type=Path, help="sweep directory with one finished run per subdirectory, or one run directory")
     ap.add_argument("test", type=Path, help="labeled test store (.h5 with z and collides) of the runs' latent space")
     ap.add_argument("--out", type=Path, default=None, help="directory for threshold_tradeoff.{json,md}")
     args = ap.parse_args(argv)
@@ -54,7 +54,10 @@ def main(argv: list[str] | None = None) -> None:
         raise UserInputError(f"{args.test}: no such test store; give the .h5 of labeled uniform samples")
     with h5py.File(args.test, "r") as h5:
         z, collides = h5["z"][:], h5["collides"][:].astype(bool)
-    runs = sorted((p for p in args.sweep.iterdir() if (p / "detector.pt").is_file()), key=lambda p: p.name)
+    if (args.sweep / "detector.pt").is_file():  # one run directory
+        runs = [args.sweep]
+    else:
+        runs = sorted((p for p in args.sweep.iterdir() if (p / "detector.pt").is_file()), key=lambda p: p.name)
     if not runs:
         raise UserInputError(f"{args.sweep}: no finished run (no <run>/detector.pt); point it at a sweep directory")
     rows = []
