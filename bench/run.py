@@ -360,6 +360,17 @@ def bench_neural(ctx: dict) -> dict:
         b4096 = repeat(lambda: net(z).logit, reps * 3, warmup=2)
     out["detector_us_per_sample_b1"] = summarize(b1, 1e6)
     out["detector_us_per_sample_b4096"] = summarize(b4096, 1e6 / len(z))
+    # side by side, interleaved: the forward before stop 23 (CP on the concatenation, one block of 4096) and today's
+    # (first CP layer split, row blocks of CollisionDetector.inference_block); bench/detector_forward.py has more
+    from bench.detector_forward import concat_forward
+    old_t, new_t = [], []
+    with torch.no_grad():
+        for _ in range(reps * 10 + 2):
+            old_t += repeat(lambda: concat_forward(net, z), 1, warmup=0)
+            new_t += repeat(lambda: net(z).prob, 1, warmup=0)
+    old_t, new_t = old_t[2:], new_t[2:]
+    out["detector_before_stop23_us_per_sample_b4096"] = summarize(old_t, 1e6 / len(z))
+    out["detector_forward_speedup_b4096"] = summarize([a / b for a, b in zip(old_t, new_t)])  # per interleaved pair
     # the exact reference on the same kind of samples: decode + full label, one core
     labeler = instantiate(cfg.labeling.labeler)(space.faces.numpy(), space.rest_vertices.numpy(),
                                                 partition=space.partition.numpy())

@@ -29,6 +29,31 @@ def test_parameters_grow_linearly_with_components():
     assert d2 == 2 * d1, "parameter count is affine in K (shared CP weights), not quadratic"
 
 
+@pytest.mark.parametrize("level2_dim, features", [(0, False), (2, False), (0, True), (3, True)])
+def test_split_first_cp_layer_equals_cp_on_the_concatenation(level2_dim, features):
+    """The CP evaluation that computes W_s S_0 once per sample is the paper's CP([S_0, part_i]) for each i."""
+    torch.manual_seed(1)
+    k = 5
+    feats = (torch.randn(k, 3), torch.randn(k, 3), "tanh") if features else None
+    det = CollisionDetector(k, level2_dim, state_dim=6, hidden=10, code_features=feats).double()
+    z = torch.randn(7, k * (1 + level2_dim), dtype=torch.float64)
+    s0 = torch.randn(7, 6, dtype=torch.float64)
+    parts = torch.randn(7, k, det.n_code_features + 1 + level2_dim, dtype=torch.float64)
+    reference = det.cp(torch.cat([s0[:, None, :].expand(-1, k, -1), parts], dim=-1))[..., 0]
+    torch.testing.assert_close(det._cp(s0, parts), reference)
+    out = det(z)  # and the whole forward still matches its pieces
+    x = (z - det.center) / det.half_range
+    parts = det.split(x)
+    cse_in = x
+    if features:
+        h = torch.tanh(z[:, :k, None] * det.feature_w + det.feature_b)
+        parts, cse_in = torch.cat([parts, h], -1), torch.cat([x, h.flatten(1)], -1)
+    s0 = det.cse(cse_in)
+    s = det.cp(torch.cat([s0[:, None, :].expand(-1, k, -1), parts], dim=-1))[..., 0]
+    torch.testing.assert_close(out.s, s)
+    torch.testing.assert_close(out.logit, det.mlp_c(s)[:, 0])
+
+
 def test_input_gradient_matches_finite_differences():
     torch.manual_seed(0)
     det = CollisionDetector(3, 2, state_dim=8, hidden=16).double()

@@ -1,0 +1,98 @@
+"""Detector forward, side by side: CP on the concatenation [S_0, part_i] (the paper's form, in one block: the
+code before stop 23) against CP with its first layer split (``CollisionDetector._cp``: the S_0 half once per
+sample), in one block and in row blocks of ``CollisionDetector.inference_block`` (the default since stop 23).
+
+    python -m bench.detector_forward RUN_DIR [--batch 4096] [--repeats 30] [--threads 2] [--out FILE]
+
+All forms run on the same detector (``RUN_DIR/detector.pt``) and the same codes, alternating repeat by repeat so
+that a noisy machine slows both alike; prints (and with ``--out`` writes as JSON) the median microseconds per
+sample of each, their ratios to the first, and checks that they give the same probabilities.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from neuralcol.nn.detector import CollisionDetector
+from neuralcol.stages.detector import load_detector
+
+
+def concat_forward(net: CollisionDetector, z_all: torch.Tensor) -> torch.Tensor:
+    """The collision probability with CP applied to the concatenation, K times per sample (before stop 23)."""
+    x = (z_all - net.center) / net.half_range
+    parts, cse_in = net.split(x), x
+    if net.feature_activation is not None:
+        h = z_all[:, : net.n_components, None] * net.feature_w + net.feature_b
+        if net.feature_activation == "tanh":
+            h = torch.tanh(h)
+        parts, cse_in = torch.cat([parts, h], dim=-1), torch.cat([x, h.flatten(1)], dim=-1)
+    s0 = net.cse(cse_in)
+    s = net.cp(torch.cat([s0[:, None, :].expand(-1, net.n_components, -1), parts], dim=-1))[..., 0]
+    return torch.sigmoid(net.mlp_c(s)[:, 0])
+
+
+def _split_one_block(net: CollisionDetector, z: torch.Tensor) -> torch.Tensor:
+    block, type(net).inference_block = type(net).inference_block, None
+    try:
+        return net(z).prob
+    finally:
+        type(net).inference_block = block
+
+
+def compare(net: CollisionDetector, batch: int, repeats: int, seed: int = 0) -> dict:
+    """Median µs per sample of each form at ``batch`` and the largest probability difference to the first."""
+    gen = torch.Generator().manual_seed(seed)
+    lo, hi = net.center - net.half_range, net.center + net.half_range
+    z = lo + (hi - lo) * torch.rand(batch, net.latent_dim, generator=gen)
+    forms = {"concat": lambda: concat_forward(net, z), "split": lambda: _split_one_block(net, z),
+             "split_blocked": lambda: net(z).prob}
+    times = {name: [] for name in forms}
+    with torch.inference_mode():
+        ref = forms["concat"]()
+        diff = max(float((f() - ref).abs().max()) for f in forms.values())
+        for _ in range(3):  # warm-up
+            for f in forms.values():
+                f()
+        for _ in range(repeats):
+            for name, f in forms.items():
+                t0 = time.perf_counter()
+                f()
+                times[name].append((time.perf_counter() - t0) / batch * 1e6)
+    med = {name: float(np.median(t)) for name, t in times.items()}
+    return {"batch": batch, "repeats": repeats, "threads": torch.get_num_threads(),
+            "block": type(net).inference_block, **{f"{k}_us_per_sample": v for k, v in med.items()},
+            "split_speedup": med["concat"] / med["split"], "split_blocked_speedup": med["concat"] / med["split_blocked"],
+            "max_prob_difference": diff}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run", type=Path, help="run directory with detector.pt")
+    ap.add_argument("--batch", type=int, nargs="+", default=[1, 4096])
+    ap.add_argument("--repeats", type=int, default=30)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    net, _ = load_detector(args.run / "detector.pt")
+    net.eval()
+    rows = [compare(net, b, args.repeats if b > 1 else 20 * args.repeats) for b in args.batch]
+    doc = {"run": str(args.run), "n_parameters": sum(p.numel() for p in net.parameters()), "rows": rows}
+    for r in rows:
+        print(f"batch {r['batch']}: concat {r['concat_us_per_sample']:.3f} µs/sample, split "
+              f"{r['split_us_per_sample']:.3f} ({r['split_speedup']:.2f}x), split in blocks of {r['block']} "
+              f"{r['split_blocked_us_per_sample']:.3f} ({r['split_blocked_speedup']:.2f}x); max |dp| "
+              f"{r['max_prob_difference']:.1e}, {r['threads']} threads")
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(doc, indent=1))
+
+
+if __name__ == "__main__":
+    main()
