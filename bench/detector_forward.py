@@ -67,7 +67,8 @@ def compare(net: CollisionDetector, batch: int, repeats: int, seed: int = 0) -> 
     med = {name: float(np.median(t)) for name, t in times.items()}
     return {"batch": batch, "repeats": repeats, "threads": torch.get_num_threads(),
             "block": type(net).inference_block, **{f"{k}_us_per_sample": v for k, v in med.items()},
-            "split_speedup": med["concat"] / med["split"], "split_blocked_speedup": med["concat"] / med["split_blocked"],
+            "split_speedup": med["concat"] / med["split"],
+            "split_blocked_speedup": med["concat"] / med["split_blocked"],
             "max_prob_difference": diff}
 
 

@@ -46,7 +46,8 @@ def tradeoff(prob: np.ndarray, collides: np.ndarray, thresholds=THRESHOLDS) -> l
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("sweep", type=Path, help="sweep directory with one finished run per subdirectory, or one run directory")
+    ap.add_argument("sweep", type=Path,
+                    help="sweep directory with one finished run per subdirectory, or one run directory")
     ap.add_argument("test", type=Path, help="labeled test store (.h5 with z and collides) of the runs' latent space")
     ap.add_argument("--out", type=Path, default=None, help="directory for threshold_tradeoff.{json,md}")
     args = ap.parse_args(argv)

@@ -54,6 +54,26 @@ def test_split_first_cp_layer_equals_cp_on_the_concatenation(level2_dim, feature
     torch.testing.assert_close(out.logit, det.mlp_c(s)[:, 0])
 
 
+def test_cpu_inference_in_blocks_equals_one_block(monkeypatch):
+    torch.manual_seed(2)
+    det = CollisionDetector(4, 1, state_dim=6, hidden=8).eval()
+    z = torch.randn(11, 8)
+    monkeypatch.setattr(CollisionDetector, "inference_block", None)
+    with torch.no_grad():
+        whole = det(z)
+    calls = []
+    monkeypatch.setattr(CollisionDetector, "inference_block", 4)
+    monkeypatch.setattr(det, "_forward", lambda x: calls.append(len(x)) or CollisionDetector._forward(det, x))
+    with torch.no_grad():
+        blocked = det(z)
+    assert calls == [4, 4, 3]
+    for a, b in zip(whole, blocked):
+        torch.testing.assert_close(a, b)
+    calls.clear()
+    det(z).prob.sum().backward()  # with gradients: one block (autograd, the projector and the handler)
+    assert calls == [11]
+
+
 def test_input_gradient_matches_finite_differences():
     torch.manual_seed(0)
     det = CollisionDetector(3, 2, state_dim=8, hidden=16).double()
