@@ -18,7 +18,7 @@ import os
 import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Sampler, TensorDataset
+from torch.utils.data import BatchSampler, DataLoader, Sampler, SequentialSampler, TensorDataset
 
 from neuralcol.collision.labeler import SUBSET_NEGATIVE, SUBSET_POSITIVE
 from neuralcol.data.collision_store import CollisionRows, CollisionStore
@@ -56,6 +56,14 @@ class EpochShuffle(Sampler[int]):
     def __iter__(self):
         gen = torch.Generator().manual_seed(self.seed * 1_000_003 + int(self.epoch()))
         return iter(torch.randperm(self.n, generator=gen).tolist())
+
+
+def batched_loader(tensors: tuple[torch.Tensor, ...], sampler: Sampler[int], batch_size: int) -> DataLoader:
+    """The batches of ``DataLoader(TensorDataset(*tensors), batch_size, sampler=sampler)``, each taken with one
+    index per tensor instead of row by row and collated (same values and order; fetching rows one at a time was a
+    quarter of a SCAPE training round's time)."""
+    return DataLoader(TensorDataset(*tensors), batch_size=None,
+                      sampler=BatchSampler(sampler, int(batch_size), drop_last=False))
 
 
 class CollisionDataModule(L.LightningDataModule):
@@ -121,12 +129,12 @@ class CollisionDataModule(L.LightningDataModule):
             raise RuntimeError(f"{self.store.path}: D_c has no training rows yet")
         sampler = EpochShuffle(self.n_train, self.seed,
                                lambda: self.trainer.current_epoch if self.trainer is not None else 0)
-        return DataLoader(TensorDataset(*self._train), batch_size=self.batch_size, sampler=sampler)
+        return batched_loader(self._train, sampler, self.batch_size)
 
     def val_dataloader(self) -> DataLoader:
         if self._val is None:
             self.refresh()
-        return DataLoader(TensorDataset(*self._val), batch_size=self.val_batch_size)
+        return batched_loader(self._val, SequentialSampler(range(len(self._val[0]))), self.val_batch_size)
 
     def close(self) -> None:
         self.store.close()
