@@ -155,7 +155,7 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     assert "where the acquired samples landed (mean over 2 active runs)" in text
     assert "left out" not in proc.stderr, "every run wrote the files of the cost and failure charts"
     # Pareto table: one configuration (the tiny sizes), both methods over two seeds, the chosen one marked
-    pareto = [line for line in text.splitlines() if line.startswith("| K8 L3 16/32 |")]
+    pareto = [line for line in text.splitlines() if line.startswith("| K16 L0 16/32 |")]
     assert [line.split("|")[2:4] for line in pareto] == [[" supv_bd ", " 2 "], [" active ", " 2 "]]
     assert "**chosen**" in pareto[1] and "**chosen**" not in pareto[0]
     # failures: five PD bins per method; the bins add up to each method's final accuracy and handler success
@@ -172,7 +172,7 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
         f = report["failures"][f"scape/{method}"]
         final = [m for m in metrics if m["detector"]["method"] == method]
         count, rate = np.array(f["accuracy"]["count"]), np.array(f["accuracy"]["mean"])
-        assert count.sum() == 200 and len(f["recall"]["count"]) == 8
+        assert count.sum() == 200 and len(f["recall"]["count"]) == 16  # SCAPE: 16 sub-domains
         np.testing.assert_allclose((np.nan_to_num(rate) * count).sum() / 200,
                                    np.mean([m["rounds"][-1]["accuracy"] for m in final]), atol=1e-9)
         count, rate = np.array(f["handler"]["count"]), np.array(f["handler"]["mean"])
