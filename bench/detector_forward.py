@@ -25,24 +25,18 @@ from neuralcol.stages.detector import load_detector
 
 def concat_forward(net: CollisionDetector, z_all: torch.Tensor) -> torch.Tensor:
     """The collision probability with CP applied to the concatenation, K times per sample (before stop 23)."""
-    x = (z_all - net.center) / net.half_range
-    parts, cse_in = net.split(x), x
-    if net.feature_activation is not None:
-        h = z_all[:, : net.n_components, None] * net.feature_w + net.feature_b
-        if net.feature_activation == "tanh":
-            h = torch.tanh(h)
-        parts, cse_in = torch.cat([parts, h], dim=-1), torch.cat([x, h.flatten(1)], dim=-1)
+    parts, cse_in = net.inputs(z_all)
     s0 = net.cse(cse_in)
     s = net.cp(torch.cat([s0[:, None, :].expand(-1, net.n_components, -1), parts], dim=-1))[..., 0]
     return torch.sigmoid(net.mlp_c(s)[:, 0])
 
 
 def _split_one_block(net: CollisionDetector, z: torch.Tensor) -> torch.Tensor:
-    block, type(net).inference_block = type(net).inference_block, None
+    net.inference_block = None  # this instance only (shadows the class attribute)
     try:
         return net(z).prob
     finally:
-        type(net).inference_block = block
+        del net.inference_block
 
 
 def compare(net: CollisionDetector, batch: int, repeats: int, seed: int = 0) -> dict:
@@ -66,7 +60,7 @@ def compare(net: CollisionDetector, batch: int, repeats: int, seed: int = 0) -> 
                 times[name].append((time.perf_counter() - t0) / batch * 1e6)
     med = {name: float(np.median(t)) for name, t in times.items()}
     return {"batch": batch, "repeats": repeats, "threads": torch.get_num_threads(),
-            "block": type(net).inference_block, **{f"{k}_us_per_sample": v for k, v in med.items()},
+            "block": net.inference_block, **{f"{k}_us_per_sample": v for k, v in med.items()},
             "split_speedup": med["concat"] / med["split"],
             "split_blocked_speedup": med["concat"] / med["split_blocked"],
             "max_prob_difference": diff}

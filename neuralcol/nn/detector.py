@@ -124,7 +124,8 @@ class CollisionDetector(nn.Module):
             return DetectorOutput(*(torch.cat(t) for t in zip(*outs)))
         return self._forward(z_all)
 
-    def _forward(self, z_all: torch.Tensor) -> DetectorOutput:
+    def inputs(self, z_all: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Z_all (B, D) -> (per-sub-domain inputs of CP (B, K, P), input of CSE (B, D [+ K H]))."""
         x = (z_all - self.center) / self.half_range  # the box -> [-1, 1]
         parts = self.split(x)  # (B, K, 1 + d)
         cse_in = x
@@ -134,6 +135,10 @@ class CollisionDetector(nn.Module):
                 h = torch.tanh(h)
             parts = torch.cat([parts, h], dim=-1)  # (B, K, 1 + d + H)
             cse_in = torch.cat([x, h.flatten(1)], dim=-1)  # (B, D + K H)
+        return parts, cse_in
+
+    def _forward(self, z_all: torch.Tensor) -> DetectorOutput:
+        parts, cse_in = self.inputs(z_all)
         s0 = self.cse(cse_in)  # (B, S)
         s = self._cp(s0, parts)  # (B, K)
         logit = self.mlp_c(s)[:, 0]
