@@ -160,13 +160,16 @@ def test_lost_scheduler_raises(setup):
     clean, _, batch = setup
     cluster = local_cluster(1)
     pool = LabelPool(clean, executor="dask", scheduler=cluster.scheduler_address, chunk_size=1)
+    closer = threading.Timer(0.5, cluster.close)
     try:
         pool.label(batch[:2])
-        threading.Timer(0.5, cluster.close).start()
+        closer.start()
         with pytest.raises(RuntimeError, match="dask cluster at tcp://127.0.0.1:.* dropped a chunk"):
             pool.label(np.concatenate([batch] * 100))
     finally:
         pool.close()
+        if closer.is_alive():  # the pool can raise while the timer's close is still running: two concurrent
+            closer.join()      # closes of one LocalCluster fail inside distributed (UnboundLocalError, CI stop 23)
         cluster.close()
 
 
