@@ -20,6 +20,7 @@ import torch
 from neuralcol.errors import DatasetNotFoundError, MeshFileError
 from neuralcol.geometry.mesh_io import MESH_SUFFIXES, natural_key, read_mesh
 from neuralcol.geometry.topology import check_faces, check_vertices
+from neuralcol.utils.files import atomic_path
 
 ARRAY_SUFFIXES = (".h5", ".hdf5", ".npz")
 DEFAULT_REL_AREA_TOL = 1e-10
@@ -199,17 +200,16 @@ def save_mesh_dataset(path: str | os.PathLike, vertices: np.ndarray, faces: np.n
     v = np.asarray(vertices.detach().cpu() if hasattr(vertices, "detach") else vertices)
     f = np.asarray(faces.detach().cpu() if hasattr(faces, "detach") else faces)
     names_arr = np.asarray(names if names is not None else [str(i) for i in range(len(v))])
-    tmp = p.with_name(p.name + ".tmp" + p.suffix)
-    if p.suffix.lower() == ".npz":
-        np.savez(tmp, vertices=v, faces=f, names=names_arr)
-    else:
-        import h5py
+    with atomic_path(p) as tmp:  # procedural data sets are cached with this: concurrent runs may write one
+        if p.suffix.lower() == ".npz":
+            np.savez(tmp, vertices=v, faces=f, names=names_arr)
+        else:
+            import h5py
 
-        with h5py.File(tmp, "w") as h5:
-            h5["vertices"] = v
-            h5["faces"] = f
-            h5["names"] = names_arr.astype("S")
-    os.replace(tmp, p)
+            with h5py.File(tmp, "w") as h5:
+                h5["vertices"] = v
+                h5["faces"] = f
+                h5["names"] = names_arr.astype("S")
     return p
 
 

@@ -13,6 +13,7 @@ import torch
 
 from neuralcol.data.datasets import MeshDataset
 from neuralcol.geometry.acap import ACAP, FEATURE_DIM
+from neuralcol.utils.files import atomic_path
 
 
 class FeatureNormalizer:
@@ -145,9 +146,8 @@ def dataset_features(
         feats = acap.encode(verts)
         if cache is not None:
             cache.parent.mkdir(parents=True, exist_ok=True)
-            tmp = cache.with_name(cache.name + ".tmp.npz")
-            np.savez(tmp, features=feats.numpy())
-            os.replace(tmp, cache)
+            with atomic_path(cache) as tmp:
+                np.savez(tmp, features=feats.numpy())
     feats = feats.to(dataset.vertices.dtype)
     normalizer = FeatureNormalizer(**normalizer_kwargs).fit(feats[torch.as_tensor(idx)])
     return DatasetFeatures(acap, feats, normalizer, reference_index, from_cache)
