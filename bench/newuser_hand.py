@@ -27,9 +27,10 @@ GEOMETRY = {"rings_per_finger": 7, "finger_lengths": (0.78, 0.95, 0.9, 0.68), "f
             "palm_thickness": 0.28, "thumb_angle": 40.0, "spread_range": (0.0, 30.0)}
 VARIANTS = {
     "a": (11, GEOMETRY),
-    "b": (29, {"rings_per_finger": 8, "finger_widths": (0.24, 0.25, 0.24, 0.2), "finger_lengths": (0.76, 0.86, 0.82, 0.72),
-               "finger_gap": 0.03, "finger_thickness": 0.21, "palm_thickness": 0.34, "thumb_base_y": 0.05,
-               "thumb_angle": 30.0, "mcp_range": (-10.0, 80.0), "pip_range": (0.0, 95.0), "spread_range": (0.0, 35.0)}),
+    "b": (29, {"rings_per_finger": 8, "finger_widths": (0.24, 0.25, 0.24, 0.2),
+               "finger_lengths": (0.76, 0.86, 0.82, 0.72), "finger_gap": 0.03, "finger_thickness": 0.21,
+               "palm_thickness": 0.34, "thumb_base_y": 0.05, "thumb_angle": 30.0, "mcp_range": (-10.0, 80.0),
+               "pip_range": (0.0, 95.0), "spread_range": (0.0, 35.0)}),
 }
 
 

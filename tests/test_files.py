@@ -9,7 +9,6 @@ import pytest
 import torch
 
 from neuralcol.data import features as features_mod
-from neuralcol.data.datasets import MeshDataset
 from neuralcol.utils.files import atomic_path
 
 
