@@ -104,6 +104,25 @@ def test_losses_match_hand_computation():
         assert getattr(got, name).item() == pytest.approx(value, rel=1e-5), name
 
 
+def test_boundary_reduction_batch_weighs_a_boundary_row_like_a_ce_row():
+    """L_b of the paper is a mean over the batch's D_b rows; "batch" divides their sum by the batch size."""
+    logit = torch.tensor([0.5, -1.0, 0.2, 1.5, -0.3])
+    out = DetectorOutput(torch.sigmoid(logit), logit, torch.zeros(5, 2))
+    pd, pd_sub = torch.tensor([0.2, -0.1, 0.0, 1e-5, -0.2]), torch.zeros(5, 2)
+    subset = torch.tensor([0, 1, 2, 2, 1])  # two D_b rows of five
+    w = dict(w_pd=0.0, w_pdsum=0.0, w_r=0.0, w_ce=2.0, w_b=0.5, margin=0.1, temperature=0.5)
+    dev = (torch.sigmoid(logit[2:4]) - 0.5).abs()
+    paper = detector_losses(out, pd, pd_sub, subset, **w)
+    batch = detector_losses(out, pd, pd_sub, subset, boundary_reduction="batch", **w)
+    assert paper.boundary.item() == pytest.approx(dev.mean().item())
+    assert batch.boundary.item() == pytest.approx(dev.sum().item() / 5)
+    assert batch.ce.item() == pytest.approx(paper.ce.item())
+    none = detector_losses(out, pd, pd_sub, torch.tensor([0, 1, 0, 1, 1]), boundary_reduction="batch", **w)
+    assert none.boundary.item() == 0.0
+    with pytest.raises(ValueError, match="boundary_reduction='sum'"):
+        detector_losses(out, pd, pd_sub, subset, boundary_reduction="sum", **w)
+
+
 def test_smooth_max_tends_to_max():
     s = torch.tensor([[0.3, -1.0, 0.25]])
     assert smooth_max(s, 1e-3).item() == pytest.approx(0.3, abs=1e-3)

@@ -42,6 +42,7 @@ def test_shipped_configs_are_valid(preset):
     ("labeling.pool.scheduler=tcp://h:8786", "labeling.pool.scheduler='tcp://h:8786': only used with "
                                              "labeling.pool.executor=dask"),
     ("detector.newton.coordinates=normalised", "detector.newton.coordinates='normalised': use one of box, raw"),
+    ("detector.loss.boundary_reduction=sum", "detector.loss.boundary_reduction='sum': use one of boundary, batch"),
     ("autoencoder.box_from=val", "autoencoder.box_from='val': use one of train, all"),
     ("method.start=random", "method.start='random': use one of dc, uncertain"),
     ("method.candidates=0", "method.candidates=0: must be an integer >= 1"),

@@ -18,16 +18,19 @@ class DetectorLitModule(L.LightningModule):
         margin: ranking margin alpha (in PD target units).
         temperature: smooth-max temperature of the aggregated depth (PD target units).
         ce_on_boundary: cross-entropy on the D_b rows too (see :func:`~neuralcol.nn.detector.detector_losses`).
+        boundary_reduction: how L_b averages its D_b rows, "boundary" (paper) or "batch" (same function).
     """
 
     def __init__(self, net: CollisionDetector, lr: float, w_pd: float, w_pdsum: float, w_r: float, w_ce: float,
-                 w_b: float, margin: float, temperature: float, ce_on_boundary: bool = False):
+                 w_b: float, margin: float, temperature: float, ce_on_boundary: bool = False,
+                 boundary_reduction: str = "boundary"):
         super().__init__()
         self.save_hyperparameters(ignore=["net"])
         self.net = net
         self.lr = float(lr)
         self.loss_kwargs = dict(w_pd=w_pd, w_pdsum=w_pdsum, w_r=w_r, w_ce=w_ce, w_b=w_b, margin=margin,
-                                temperature=temperature, ce_on_boundary=bool(ce_on_boundary))
+                                temperature=temperature, ce_on_boundary=bool(ce_on_boundary),
+                                boundary_reduction=str(boundary_reduction))
 
     def forward(self, z: torch.Tensor):
         return self.net(z)

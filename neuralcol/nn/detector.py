@@ -178,7 +178,8 @@ class DetectorLosses(NamedTuple):
 
 def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor, subset: torch.Tensor,
                     w_pd: float, w_pdsum: float, w_r: float, w_ce: float, w_b: float, margin: float,
-                    temperature: float, ce_on_boundary: bool = False) -> DetectorLosses:
+                    temperature: float, ce_on_boundary: bool = False,
+                    boundary_reduction: str = "boundary") -> DetectorLosses:
     """``L = w_PD L_PD + w_r L_r + w_ce L_ce + w_b L_b`` (paper sec. 4.3) on one batch.
 
     - ``L_PD = mean_B [ sum_i (S_i - PD_i)^2 + w_PDsum (smax(S) - PD)^2 ]``: PD_i are the labeler's
@@ -189,7 +190,11 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
     - ``L_ce``: binary cross-entropy of the collision probability on D_p and D_n (subset 0 and 1); with
       ``ce_on_boundary`` on every row, D_b included (their label, ``PD > 0``, is known: without it the shallow
       collisions of D_b are only pulled to p = 0.5 by L_b, and the detector under-calls collisions).
-    - ``L_b = mean over D_b (subset 2) of |p - 0.5|`` (paper eq. 3).
+    - ``L_b = mean over D_b (subset 2) of |p - 0.5|`` (paper eq. 3; ``boundary_reduction="boundary"``). With
+      ``boundary_reduction="batch"`` the D_b terms are summed and divided by the batch size instead, so a D_b row
+      weighs ``w_b / B`` like a cross-entropy row's ``w_ce / B`` rather than ``w_b / |D_b in batch|`` (with the
+      paper's eps, D_b is a few rows per thousand: ~100x the weight of a CE row). Not in the paper; a
+      diagnostic of supv_bd (docs/diagnosis.md).
 
     Args:
         out: detector output for the batch.
@@ -200,6 +205,7 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
         margin: ranking margin alpha.
         temperature: smooth-max temperature.
         ce_on_boundary: cross-entropy on D_b rows too (not in the paper; docs/diagnosis.md, cause 4).
+        boundary_reduction: "boundary" (paper: mean over the batch's D_b rows) or "batch" (sum / batch size).
 
     Returns:
         DetectorLosses; terms without samples (e.g. no D_b in the batch) are 0.
@@ -220,6 +226,13 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
     else:
         l_ce = agg.new_zeros(())
     bmask = subset == 2
-    l_b = (out.prob[bmask] - 0.5).abs().mean() if bmask.any() else agg.new_zeros(())
+    if boundary_reduction not in ("boundary", "batch"):
+        raise ValueError(f"boundary_reduction={boundary_reduction!r}; use 'boundary' (the paper's) or 'batch'")
+    if not bmask.any():
+        l_b = agg.new_zeros(())
+    elif boundary_reduction == "boundary":
+        l_b = (out.prob[bmask] - 0.5).abs().mean()
+    else:
+        l_b = (out.prob[bmask] - 0.5).abs().sum() / len(subset)
     total = w_pd * l_pd + w_r * l_r + w_ce * l_ce + w_b * l_b
     return DetectorLosses(total, l_pd, l_r, l_ce, l_b)

@@ -263,7 +263,8 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     module = DetectorLitModule(net, lr=sched["bootstrap"].lr, w_pd=l_cfg["w_pd"], w_pdsum=l_cfg["w_pdsum"],
                                w_r=l_cfg["w_r"], w_ce=l_cfg["w_ce"], w_b=float(method["w_b"]),
                                margin=l_cfg["margin"], temperature=l_cfg["temperature"],
-                               ce_on_boundary=bool(l_cfg.get("ce_on_boundary", False)))
+                               ce_on_boundary=bool(l_cfg.get("ce_on_boundary", False)),
+                               boundary_reduction=str(l_cfg.get("boundary_reduction", "boundary")))
     if not resuming:  # bootstrap: N_init uniform samples (round 0)
         boot = acquire.take(int(det["n_init"]))
         dm.append(boot.z, boot.pd, boot.pd_sub, boot.collides, boot.subset, 0, boot.origin)

@@ -53,7 +53,8 @@ def config_problems(cfg: DictConfig) -> list[str]:
     need("method.projected_fraction", lambda v: 0 <= float(v) <= 1, "must lie in [0, 1]")
     choices = {"detector.newton.coordinates": ("box", "raw"), "autoencoder.box_from": ("train", "all"),
                "autoencoder.level1.activation": ("tanh", "linear"), "method.start": ("dc", "uncertain"),
-               "labeling.backend": ("cpu", "gpu", "fcl", "auto")}
+               "labeling.backend": ("cpu", "gpu", "fcl", "auto"),
+               "detector.loss.boundary_reduction": ("boundary", "batch")}
     for key, allowed in choices.items():
         if _get(cfg, key) is not None:
             need(key, lambda v, allowed=allowed: v in allowed, f"use one of {', '.join(allowed)}")
