@@ -24,6 +24,7 @@ from neuralcol.active.acquisition import UniformAcquisition
 from neuralcol.active.stopping import should_stop
 from neuralcol.data.collision_datamodule import CollisionDataModule
 from neuralcol.utils.faults import fault_point
+from neuralcol.utils.files import atomic_path
 
 
 @dataclass(frozen=True)
@@ -51,9 +52,8 @@ class Schedule:
 
 
 def write_json_atomic(path: Path, obj) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2))
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(obj, indent=2))
 
 
 class DataRounds(L.Callback):

@@ -15,6 +15,7 @@ from torch import nn
 from neuralcol.data.features import FeatureNormalizer
 from neuralcol.geometry.acap import ACAP
 from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder, Level2Autoencoders
+from neuralcol.utils.files import atomic_path
 
 
 class LatentSpace(nn.Module):
@@ -114,9 +115,8 @@ class LatentSpace(nn.Module):
                                                     "hidden": l2.decoders[0][0].out_features}}
         blob = {"arch": arch, "state": self.state_dict(), "acap_kwargs": self.acap_kwargs,
                 "norm_bound": self.norm_bound, "meta": self.meta}
-        tmp = path.with_name(path.name + ".tmp")
-        torch.save(blob, tmp)
-        tmp.replace(path)
+        with atomic_path(path) as tmp:
+            torch.save(blob, tmp)
         return path
 
     @classmethod

@@ -30,6 +30,7 @@ from neuralcol.lit.detector import DetectorLitModule
 from neuralcol.metrics.detection import detection_metrics
 from neuralcol.nn.detector import CollisionDetector
 from neuralcol.utils.config import as_dict
+from neuralcol.utils.files import atomic_path
 from neuralcol.utils.tensorboard import log_round_examples
 from neuralcol.utils.validate import METHODS  # one list of method names
 
@@ -77,9 +78,8 @@ def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, p
             "method": method["name"], "pd_unit": pd_unit,
             "code_features": None if net.feature_activation is None else
             {"hidden": net.n_code_features, "activation": net.feature_activation}}
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(blob, tmp)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        torch.save(blob, tmp)
 
 
 def load_detector(path: str | Path, map_location="cpu") -> tuple[CollisionDetector, dict]:
@@ -278,8 +278,8 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     final = module.net.cpu()
     save_detector(run_dir / "detector.pt", final, det, method, pd_unit)
     preds = run_dir / "test_predictions.npz"
-    np.savez_compressed(preds.with_name("test_predictions.tmp.npz"), **predict_test_set(final, test))
-    preds.with_name("test_predictions.tmp.npz").replace(preds)
+    with atomic_path(preds) as tmp:
+        np.savez_compressed(tmp, **predict_test_set(final, test))
     out = {"rounds": rounds_cb.rounds, "detector": {**summary(), "resumed": resuming,
                                                     "inference_us": inference_us(final, test.z)}}
     write_json_atomic(rounds_path, {"finished": rounds_cb.finished, "rounds": rounds_cb.rounds,

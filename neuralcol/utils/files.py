@@ -1,4 +1,4 @@
-"""Atomic writes of files that several processes may write at once (shared caches of a multirun)."""
+"""Atomic file writes: a reader never sees a partial file, and several processes may write one cache entry at once."""
 
 from __future__ import annotations
 
