@@ -37,6 +37,13 @@ def test_scape_k8l3_is_scape_with_the_sizes_of_before():
     assert old.source == new.source and old.cpu.test_size == new.cpu.test_size
 
 
+def test_scape_cpu_preset_labels_38000_samples():
+    # stop 25's registered sweep (docs/results.md): 8 000 + 5 x 6 000 met the FNR bar where 28 000 did not
+    cpu = _compose(["dataset=scape"]).dataset.cpu
+    assert cpu.n_init + cpu.max_rounds * cpu.n_aug == 38000
+    assert (cpu.n_init, cpu.n_aug, cpu.max_rounds, cpu.test_size) == (8000, 6000, 5, 20000)
+
+
 def test_paper_datasets_present():
     assert {"scape", "swing", "jump", "skirt", "hand", "proc_hand", "proc_cloth"} <= set(DATASETS)
 
