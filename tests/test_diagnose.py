@@ -16,7 +16,7 @@ from neuralcol.data.collision_store import CollisionRows
 from neuralcol.diagnose.curve import learning_curve, needed_size, take_rows
 from neuralcol.diagnose.latent import decoder_report, label_roughness, plausibility_report, reconstruction_report
 from neuralcol.metrics.projection import boundary_shares, projection_quality
-from neuralcol.nn.detector import CollisionDetector
+from neuralcol.nn.detector import CollisionDetector, epoch_lr
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -147,6 +147,35 @@ def test_learning_curve_on_the_ball():
     assert len(take_rows(rows, 7).z) == 7
 
 
+def test_epoch_lr_constant_and_cosine():
+    assert [epoch_lr(1e-3, e, 10) for e in (0, 5, 9)] == [1e-3] * 3
+    cos = [epoch_lr(1e-3, e, 4, "cosine") for e in range(4)]
+    # (1 + cos(pi e / 4)) / 2 for e = 0..3: 1, 0.854, 0.5, 0.146 (never 0: the last epoch still trains)
+    assert np.allclose(cos, 1e-3 * np.array([1.0, 0.8535534, 0.5, 0.1464466]))
+    with pytest.raises(ValueError, match="lr schedule"):
+        epoch_lr(1e-3, 0, 4, "step")
+
+
+def test_curve_variants_set_schedule_epochs_and_patience():
+    rows, test = _ball_rows(400, 0), _ball_rows(1000, 1)
+    det = {"net": {"state_dim": 16, "hidden": 32}, "targets": {"pd_clip": 0.25, "pd_floor": -0.25},
+           "loss": {"w_pd": 5.0, "w_pdsum": 0.2, "w_r": 2.0, "w_ce": 2.0, "margin": 0.01, "temperature": 0.1},
+           "epochs": 30, "lr": 1e-2, "batch_size": 64}
+
+    def build(net):
+        return CollisionDetector(K, 1, int(net["state_dim"]), int(net["hidden"]), -torch.ones(D), torch.ones(D))
+
+    variants = [{"name": "plain"}, {"name": "cosine", "lr_schedule": "cosine"},
+                {"name": "long", "epochs": 400, "patience": 2}]
+    recs = {r["model"]: r for r in learning_curve(rows, test, [400], variants, build, 0.5, det, [0], -np.ones(D),
+                                                  np.ones(D), references=False, log=lambda *_: None)}
+    assert recs["plain"]["epochs_run"] == recs["cosine"]["epochs_run"] == 30
+    keys = ("val_accuracy", "train_accuracy", "epoch", "test")
+    assert [recs["plain"][k] for k in keys] != [recs["cosine"][k] for k in keys], "the schedule changes the training"
+    # patience: stops 2 epochs after its best validation epoch, long before 400
+    assert recs["long"]["epochs_run"] == recs["long"]["epoch"] + 3 < 400
+
+
 def test_needed_size_extrapolates_a_log_linear_curve():
     sizes = [1000, 2000, 4000, 8000]
     acc = [0.70 + 0.02 * i for i in range(4)]  # +2 points per doubling
@@ -252,3 +281,31 @@ def test_ablation_bench_configs_compose():
         cfg = _cfg("proc_hand", list(overrides))
         assert "diagnose" in cfg and cfg.autoencoder.level1.activation in ("tanh", "linear"), name
     assert _cfg("proc_hand", ["autoencoder.level1.code_noise=0.3"]).autoencoder.level1.code_noise == 0.3
+
+
+def _write_curve(folder: Path, records: list[dict]) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "diagnosis.json").write_text(json.dumps({"curve": {"records": records}}))
+
+
+def test_compare_curves_pairs_variants_by_size_and_seed(tmp_path, capsys):
+    from bench.compare_curves import main
+
+    def rec(model, size, seed, acc, fnr):
+        return {"model": model, "size": size, "seed": seed, "epochs_run": 100, "test": {"accuracy": acc, "fnr": fnr}}
+
+    _write_curve(tmp_path / "a", [rec("constant", 4000, 0, 0.80, 0.40), rec("constant", 4000, 1, 0.82, 0.30),
+                                  rec("constant", 8000, 0, 0.85, 0.20), rec("other", 4000, 0, 0.0, 1.0)])
+    _write_curve(tmp_path / "b", [rec("long", 4000, 0, 0.81, 0.35), rec("long", 4000, 1, 0.84, 0.30)])
+    out = tmp_path / "cmp.json"
+    assert main([f"{tmp_path / 'a'}:constant", f"{tmp_path / 'b'}:long", "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert [(p["size"], p["seed"]) for p in res["pairs"]] == [(4000, 0), (4000, 1)]  # 8000 has no partner
+    assert res["mean_d_accuracy"] == pytest.approx(0.015) and res["mean_d_fnr"] == pytest.approx(-0.025)
+    assert "+1.50 points" in capsys.readouterr().out
+    # a misspelt variant names the file and the variants it has
+    with pytest.raises(SystemExit) as exc:
+        main([f"{tmp_path / 'a'}:constnt", f"{tmp_path / 'b'}:long"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "no variant 'constnt'" in err and "'constant'" in err and "diagnosis.json" in err

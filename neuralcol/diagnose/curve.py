@@ -22,7 +22,7 @@ import torch
 from neuralcol.data.collision_datamodule import detector_targets
 from neuralcol.data.collision_store import VAL_EVERY, CollisionRows
 from neuralcol.metrics.detection import detection_metrics
-from neuralcol.nn.detector import CollisionDetector, detector_losses
+from neuralcol.nn.detector import CollisionDetector, detector_losses, epoch_lr
 
 
 def take_rows(rows: CollisionRows, n: int) -> CollisionRows:
@@ -32,7 +32,7 @@ def take_rows(rows: CollisionRows, n: int) -> CollisionRows:
 
 def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, loss: dict, w_b: float,
                  use_boundary_set: bool, pd_clip: float, pd_floor: float | None, epochs: int, lr: float,
-                 batch_size: int, seed: int) -> dict:
+                 batch_size: int, seed: int, lr_schedule: str = "constant", patience: int | None = None) -> dict:
     """Train ``net`` on ``rows`` (80/20 by row position, as D_c) and keep the best-validation epoch.
 
     Args:
@@ -43,12 +43,15 @@ def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, lo
         w_b: weight of L_b (0 for ``supv``).
         use_boundary_set: keep D_b (``supv_bd``) or fold it into D_p (``supv``).
         epochs, lr, batch_size: Adam schedule.
+        lr_schedule: ``constant`` or ``cosine`` over the epochs (:func:`~neuralcol.nn.detector.epoch_lr`).
+        patience: stop once this many epochs passed without a better validation accuracy (None: all epochs).
         seed: initialisation is the caller's; this seeds the shuffling.
 
     Returns:
         ``train_accuracy``, ``val_accuracy``, ``epoch`` (selected), ``seconds``; the net holds the selected weights.
     """
     z, pd, pd_sub, subset = detector_targets(rows, pd_unit, pd_clip, use_boundary_set, pd_floor)
+    epochs_run = 0
     val = torch.as_tensor(np.arange(len(z)) % VAL_EVERY == VAL_EVERY - 1)
     tr = torch.nonzero(~val).flatten()
     kw = {k: float(loss[k]) for k in ("w_pd", "w_pdsum", "w_r", "w_ce", "margin", "temperature")}
@@ -58,6 +61,8 @@ def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, lo
     best = (-1.0, -1, None, float("nan"))
     t0 = time.perf_counter()
     for epoch in range(int(epochs)):
+        for group in opt.param_groups:
+            group["lr"] = epoch_lr(lr, epoch, int(epochs), lr_schedule)
         net.train()
         for b in tr[torch.randperm(len(tr), generator=gen)].split(int(batch_size)):
             out = net(z[b])
@@ -71,8 +76,11 @@ def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, lo
             if acc > best[0]:
                 tr_acc = float(((net(z[tr]).logit > 0) == (pd[tr] > 0)).float().mean())
                 best = (acc, epoch, {k: v.clone() for k, v in net.state_dict().items()}, tr_acc)
+        epochs_run = epoch + 1
+        if patience is not None and epoch - best[1] >= int(patience):
+            break
     net.load_state_dict(best[2])
-    return {"val_accuracy": best[0], "epoch": best[1], "train_accuracy": best[3],
+    return {"val_accuracy": best[0], "epoch": best[1], "train_accuracy": best[3], "epochs_run": epochs_run,
             "seconds": time.perf_counter() - t0}
 
 
@@ -120,10 +128,12 @@ def learning_curve(rows: CollisionRows, test: CollisionRows, sizes: Sequence[int
         variants: ``{"name": ..., **overrides}``; overrides of the detector config ``det`` (keys of
             ``det["net"]``: ``state_dim``, ``hidden``, ``decoder_features``, and ``width_factor`` scaling both
             widths; of ``det["targets"]``: ``pd_clip``,
-            ``pd_floor``; of ``det["loss"]``; and ``w_b``, ``use_boundary_set``).
+            ``pd_floor``; of ``det["loss"]``; ``lr_schedule``, ``epochs``, ``patience``; and ``w_b``,
+            ``use_boundary_set``).
         build: ``net_config (dict) -> CollisionDetector`` (fresh, seeded by the caller's torch seed).
         pd_unit: the labeler's clearance cap.
-        det: the detector config (``conf/detector/*.yaml``) with ``epochs``, ``lr``, ``batch_size``.
+        det: the detector config (``conf/detector/*.yaml``) with ``epochs``, ``lr``, ``batch_size`` (and
+            ``lr_schedule``, default constant).
         seeds: training seeds.
         box_lo, box_hi: (D,) the latent box (inputs of the references).
         references: also score HistGradientBoosting and kNN.
@@ -157,14 +167,16 @@ def learning_curve(rows: CollisionRows, test: CollisionRows, sizes: Sequence[int
                 net = build(net_cfg)
                 fit = fit_detector(net, sub, pd_unit, loss, float(over.get("w_b", 0.0)),
                                    bool(over.get("use_boundary_set", False)), float(targets["pd_clip"]),
-                                   targets.get("pd_floor"), int(det["epochs"]), float(det["lr"]),
-                                   int(det["batch_size"]), int(seed))
+                                   targets.get("pd_floor"), int(over.get("epochs", det["epochs"])),
+                                   float(det["lr"]), int(det["batch_size"]), int(seed),
+                                   str(over.get("lr_schedule", det.get("lr_schedule", "constant"))),
+                                   over.get("patience", det.get("patience")))
                 rec = {"size": int(n), "model": var["name"], "seed": int(seed), **fit, "test": test_metrics(net, test),
                        "n_parameters": int(sum(p.numel() for p in net.parameters()))}
                 out.append(rec)
                 log(f"  n={n}: {var['name']} seed {seed}: train {fit['train_accuracy']:.4f}, val "
                     f"{fit['val_accuracy']:.4f}, test {rec['test']['accuracy']:.4f} (FNR {rec['test']['fnr']:.3f}), "
-                    f"epoch {fit['epoch']}, {fit['seconds']:.0f} s")
+                    f"epoch {fit['epoch']} of {fit['epochs_run']}, {fit['seconds']:.0f} s")
     return out
 
 

@@ -10,6 +10,7 @@ Symbols: B batch, D = |Z_all|, K = |Z_0| sub-domains, d = level-2 code size.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import torch
@@ -164,6 +165,23 @@ class CollisionDetector(nn.Module):
 def smooth_max(s: torch.Tensor, temperature: float) -> torch.Tensor:
     """Soft maximum over the last axis: ``t * logsumexp(s / t)`` (-> max as t -> 0). (B, K) -> (B,)."""
     return temperature * torch.logsumexp(s / temperature, dim=-1)
+
+
+LR_SCHEDULES = ("constant", "cosine")
+
+
+def epoch_lr(base_lr: float, epoch: int, epochs: int, schedule: str = "constant") -> float:
+    """Learning rate of epoch ``epoch`` (0-based) of a training run of ``epochs`` epochs.
+
+    ``constant``: ``base_lr`` throughout (the paper). ``cosine``: ``base_lr * (1 + cos(pi * epoch / epochs)) / 2``,
+    from ``base_lr`` at epoch 0 down to nearly 0 at the last epoch (never exactly 0, so no epoch is wasted).
+    """
+    if schedule not in LR_SCHEDULES:
+        raise ValueError(f"lr schedule {schedule!r}: expected one of {LR_SCHEDULES}")
+    if schedule == "constant" or epochs <= 1:
+        return float(base_lr)
+    e = min(max(int(epoch), 0), int(epochs) - 1)
+    return float(base_lr) * 0.5 * (1.0 + math.cos(math.pi * e / int(epochs)))
 
 
 class DetectorLosses(NamedTuple):
