@@ -166,12 +166,13 @@ def test_curve_variants_set_schedule_epochs_and_patience():
         return CollisionDetector(K, 1, int(net["state_dim"]), int(net["hidden"]), -torch.ones(D), torch.ones(D))
 
     variants = [{"name": "plain"}, {"name": "cosine", "lr_schedule": "cosine"},
-                {"name": "long", "epochs": 400, "patience": 2}]
+                {"name": "long", "epochs": 400, "patience": 2}, {"name": "ema", "ema_epochs": 2}]
     recs = {r["model"]: r for r in learning_curve(rows, test, [400], variants, build, 0.5, det, [0], -np.ones(D),
                                                   np.ones(D), references=False, log=lambda *_: None)}
     assert recs["plain"]["epochs_run"] == recs["cosine"]["epochs_run"] == 30
     keys = ("val_accuracy", "train_accuracy", "epoch", "test")
     assert [recs["plain"][k] for k in keys] != [recs["cosine"][k] for k in keys], "the schedule changes the training"
+    assert [recs["plain"][k] for k in keys] != [recs["ema"][k] for k in keys], "the averaged weights are scored"
     # patience: stops 2 epochs after its best validation epoch, long before 400
     assert recs["long"]["epochs_run"] == recs["long"]["epoch"] + 3 < 400
 

@@ -32,7 +32,8 @@ def take_rows(rows: CollisionRows, n: int) -> CollisionRows:
 
 def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, loss: dict, w_b: float,
                  use_boundary_set: bool, pd_clip: float, pd_floor: float | None, epochs: int, lr: float,
-                 batch_size: int, seed: int, lr_schedule: str = "constant", patience: int | None = None) -> dict:
+                 batch_size: int, seed: int, lr_schedule: str = "constant", patience: int | None = None,
+                 ema_epochs: float | None = None) -> dict:
     """Train ``net`` on ``rows`` (80/20 by row position, as D_c) and keep the best-validation epoch.
 
     Args:
@@ -45,6 +46,9 @@ def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, lo
         epochs, lr, batch_size: Adam schedule.
         lr_schedule: ``constant`` or ``cosine`` over the epochs (:func:`~neuralcol.nn.detector.epoch_lr`).
         patience: stop once this many epochs passed without a better validation accuracy (None: all epochs).
+        ema_epochs: validate, select and keep an exponential moving average of the weights (``torch.optim.swa_utils``)
+            whose horizon is this many epochs (per-step decay ``1 - 1 / (ema_epochs * steps per epoch)``);
+            None: the raw weights.
         seed: initialisation is the caller's; this seeds the shuffling.
 
     Returns:
@@ -59,6 +63,12 @@ def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, lo
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     gen = torch.Generator().manual_seed(int(seed))
     best = (-1.0, -1, None, float("nan"))
+    ema = None
+    if ema_epochs:
+        steps = max(1, -(-len(tr) // int(batch_size)))
+        decay = 1.0 - 1.0 / (float(ema_epochs) * steps)
+        ema = torch.optim.swa_utils.AveragedModel(net, multi_avg_fn=torch.optim.swa_utils.get_ema_multi_avg_fn(decay))
+    model = net if ema is None else ema.module
     t0 = time.perf_counter()
     for epoch in range(int(epochs)):
         for group in opt.param_groups:
@@ -70,12 +80,14 @@ def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, lo
             opt.zero_grad()
             total.backward()
             opt.step()
-        net.eval()
+            if ema is not None:
+                ema.update_parameters(net)
+        model.eval()
         with torch.no_grad():
-            acc = float(((net(z[val]).logit > 0) == (pd[val] > 0)).float().mean()) if val.any() else 0.0
+            acc = float(((model(z[val]).logit > 0) == (pd[val] > 0)).float().mean()) if val.any() else 0.0
             if acc > best[0]:
-                tr_acc = float(((net(z[tr]).logit > 0) == (pd[tr] > 0)).float().mean())
-                best = (acc, epoch, {k: v.clone() for k, v in net.state_dict().items()}, tr_acc)
+                tr_acc = float(((model(z[tr]).logit > 0) == (pd[tr] > 0)).float().mean())
+                best = (acc, epoch, {k: v.clone() for k, v in model.state_dict().items()}, tr_acc)
         epochs_run = epoch + 1
         if patience is not None and epoch - best[1] >= int(patience):
             break
@@ -128,7 +140,7 @@ def learning_curve(rows: CollisionRows, test: CollisionRows, sizes: Sequence[int
         variants: ``{"name": ..., **overrides}``; overrides of the detector config ``det`` (keys of
             ``det["net"]``: ``state_dim``, ``hidden``, ``decoder_features``, and ``width_factor`` scaling both
             widths; of ``det["targets"]``: ``pd_clip``,
-            ``pd_floor``; of ``det["loss"]``; ``lr_schedule``, ``epochs``, ``patience``; and ``w_b``,
+            ``pd_floor``; of ``det["loss"]``; ``lr_schedule``, ``epochs``, ``patience``, ``ema_epochs``; and ``w_b``,
             ``use_boundary_set``).
         build: ``net_config (dict) -> CollisionDetector`` (fresh, seeded by the caller's torch seed).
         pd_unit: the labeler's clearance cap.
@@ -170,7 +182,8 @@ def learning_curve(rows: CollisionRows, test: CollisionRows, sizes: Sequence[int
                                    targets.get("pd_floor"), int(over.get("epochs", det["epochs"])),
                                    float(det["lr"]), int(det["batch_size"]), int(seed),
                                    str(over.get("lr_schedule", det.get("lr_schedule", "constant"))),
-                                   over.get("patience", det.get("patience")))
+                                   over.get("patience", det.get("patience")),
+                                   over.get("ema_epochs", det.get("ema_epochs")))
                 rec = {"size": int(n), "model": var["name"], "seed": int(seed), **fit, "test": test_metrics(net, test),
                        "n_parameters": int(sum(p.numel() for p in net.parameters()))}
                 out.append(rec)
