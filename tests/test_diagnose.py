@@ -125,17 +125,20 @@ def _ball_rows(n, seed):
                          np.arange(n))
 
 
+# the ball's detector config and builder, shared by the learning-curve tests
+BALL_DET = {"net": {"state_dim": 16, "hidden": 32}, "targets": {"pd_clip": 0.25, "pd_floor": -0.25},
+            "loss": {"w_pd": 5.0, "w_pdsum": 0.2, "w_r": 2.0, "w_ce": 2.0, "margin": 0.01, "temperature": 0.1},
+            "epochs": 30, "lr": 1e-2, "batch_size": 64}
+
+
+def _build_ball_detector(net: dict) -> CollisionDetector:
+    return CollisionDetector(K, 1, int(net["state_dim"]), int(net["hidden"]), -torch.ones(D), torch.ones(D))
+
+
 def test_learning_curve_on_the_ball():
     rows, test = _ball_rows(400, 0), _ball_rows(1000, 1)
-    det = {"net": {"state_dim": 16, "hidden": 32}, "targets": {"pd_clip": 0.25, "pd_floor": -0.25},
-           "loss": {"w_pd": 5.0, "w_pdsum": 0.2, "w_r": 2.0, "w_ce": 2.0, "margin": 0.01, "temperature": 0.1},
-           "epochs": 30, "lr": 1e-2, "batch_size": 64}
-
-    def build(net):
-        return CollisionDetector(K, 1, int(net["state_dim"]), int(net["hidden"]), -torch.ones(D), torch.ones(D))
-
-    recs = learning_curve(rows, test, [100, 400], [{"name": "det"}, {"name": "wide", "width_factor": 2}], build,
-                          0.5, det, [0], -np.ones(D), np.ones(D), log=lambda *_: None)
+    recs = learning_curve(rows, test, [100, 400], [{"name": "det"}, {"name": "wide", "width_factor": 2}],
+                          _build_ball_detector, 0.5, BALL_DET, [0], -np.ones(D), np.ones(D), log=lambda *_: None)
     assert [(r["size"], r["model"]) for r in recs] == [(100, "hgb"), (100, "knn"), (100, "det"), (100, "wide"),
                                                        (400, "hgb"), (400, "knn"), (400, "det"), (400, "wide")]
     wide = [r for r in recs if r["model"] == "wide"][0]
@@ -158,17 +161,11 @@ def test_epoch_lr_constant_and_cosine():
 
 def test_curve_variants_set_schedule_epochs_and_patience():
     rows, test = _ball_rows(400, 0), _ball_rows(1000, 1)
-    det = {"net": {"state_dim": 16, "hidden": 32}, "targets": {"pd_clip": 0.25, "pd_floor": -0.25},
-           "loss": {"w_pd": 5.0, "w_pdsum": 0.2, "w_r": 2.0, "w_ce": 2.0, "margin": 0.01, "temperature": 0.1},
-           "epochs": 30, "lr": 1e-2, "batch_size": 64}
-
-    def build(net):
-        return CollisionDetector(K, 1, int(net["state_dim"]), int(net["hidden"]), -torch.ones(D), torch.ones(D))
-
     variants = [{"name": "plain"}, {"name": "cosine", "lr_schedule": "cosine"},
                 {"name": "long", "epochs": 400, "patience": 2}, {"name": "ema", "ema_epochs": 2}]
-    recs = {r["model"]: r for r in learning_curve(rows, test, [400], variants, build, 0.5, det, [0], -np.ones(D),
-                                                  np.ones(D), references=False, log=lambda *_: None)}
+    recs = {r["model"]: r for r in learning_curve(rows, test, [400], variants, _build_ball_detector, 0.5, BALL_DET,
+                                                  [0], -np.ones(D), np.ones(D), references=False,
+                                                  log=lambda *_: None)}
     assert recs["plain"]["epochs_run"] == recs["cosine"]["epochs_run"] == 30
     keys = ("val_accuracy", "train_accuracy", "epoch", "test")
     assert [recs["plain"][k] for k in keys] != [recs["cosine"][k] for k in keys], "the schedule changes the training"
