@@ -52,7 +52,8 @@ def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, lo
         seed: initialisation is the caller's; this seeds the shuffling.
 
     Returns:
-        ``train_accuracy``, ``val_accuracy``, ``epoch`` (selected), ``seconds``; the net holds the selected weights.
+        ``train_accuracy``, ``val_accuracy``, ``epoch`` (selected), ``epochs_run``, ``seconds``; the net holds the
+        selected weights (the averaged ones with ``ema_epochs``).
     """
     z, pd, pd_sub, subset = detector_targets(rows, pd_unit, pd_clip, use_boundary_set, pd_floor)
     epochs_run = 0
@@ -144,8 +145,8 @@ def learning_curve(rows: CollisionRows, test: CollisionRows, sizes: Sequence[int
             ``use_boundary_set``).
         build: ``net_config (dict) -> CollisionDetector`` (fresh, seeded by the caller's torch seed).
         pd_unit: the labeler's clearance cap.
-        det: the detector config (``conf/detector/*.yaml``) with ``epochs``, ``lr``, ``batch_size`` (and
-            ``lr_schedule``, default constant).
+        det: the detector config (``conf/detector/*.yaml``) with ``epochs``, ``lr``, ``batch_size`` (and optionally
+            ``lr_schedule``, default constant, ``patience`` and ``ema_epochs``, default none).
         seeds: training seeds.
         box_lo, box_hi: (D,) the latent box (inputs of the references).
         references: also score HistGradientBoosting and kNN.
