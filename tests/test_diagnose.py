@@ -13,10 +13,10 @@ from test_active import BallOracle, D, K, _train
 from neuralcol.active.rounds import Schedule
 from neuralcol.data.collision_datamodule import detector_targets
 from neuralcol.data.collision_store import CollisionRows
-from neuralcol.diagnose.curve import learning_curve, needed_size, take_rows
+from neuralcol.diagnose.curve import epoch_lr, learning_curve, needed_size, take_rows
 from neuralcol.diagnose.latent import decoder_report, label_roughness, plausibility_report, reconstruction_report
 from neuralcol.metrics.projection import boundary_shares, projection_quality
-from neuralcol.nn.detector import CollisionDetector, epoch_lr
+from neuralcol.nn.detector import CollisionDetector
 
 ROOT = Path(__file__).resolve().parents[1]
 

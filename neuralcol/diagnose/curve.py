@@ -13,6 +13,7 @@ the epoch with the best validation accuracy.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 
@@ -22,7 +23,23 @@ import torch
 from neuralcol.data.collision_datamodule import detector_targets
 from neuralcol.data.collision_store import VAL_EVERY, CollisionRows
 from neuralcol.metrics.detection import detection_metrics
-from neuralcol.nn.detector import CollisionDetector, detector_losses, epoch_lr
+from neuralcol.nn.detector import CollisionDetector, detector_losses
+
+LR_SCHEDULES = ("constant", "cosine")
+
+
+def epoch_lr(base_lr: float, epoch: int, epochs: int, schedule: str = "constant") -> float:
+    """Learning rate of epoch ``epoch`` (0-based) of a training run of ``epochs`` epochs.
+
+    ``constant``: ``base_lr`` throughout (the paper's). ``cosine``: ``base_lr * (1 + cos(pi * epoch / epochs)) / 2``,
+    from ``base_lr`` at epoch 0 down to nearly 0 at the last epoch (never exactly 0, so no epoch is wasted).
+    """
+    if schedule not in LR_SCHEDULES:
+        raise ValueError(f"lr schedule {schedule!r}: expected one of {LR_SCHEDULES}")
+    if schedule == "constant" or epochs <= 1:
+        return float(base_lr)
+    e = min(max(int(epoch), 0), int(epochs) - 1)
+    return float(base_lr) * 0.5 * (1.0 + math.cos(math.pi * e / int(epochs)))
 
 
 def take_rows(rows: CollisionRows, n: int) -> CollisionRows:
@@ -44,7 +61,7 @@ def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, lo
         w_b: weight of L_b (0 for ``supv``).
         use_boundary_set: keep D_b (``supv_bd``) or fold it into D_p (``supv``).
         epochs, lr, batch_size: Adam schedule.
-        lr_schedule: ``constant`` or ``cosine`` over the epochs (:func:`~neuralcol.nn.detector.epoch_lr`).
+        lr_schedule: ``constant`` or ``cosine`` over the epochs (:func:`epoch_lr`).
         patience: stop once this many epochs passed without a better validation accuracy (None: all epochs).
         ema_epochs: validate, select and keep an exponential moving average of the weights (``torch.optim.swa_utils``)
             whose horizon is this many epochs (per-step decay ``1 - 1 / (ema_epochs * steps per epoch)``);

@@ -10,7 +10,6 @@ Symbols: B batch, D = |Z_all|, K = |Z_0| sub-domains, d = level-2 code size.
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import torch
@@ -167,21 +166,7 @@ def smooth_max(s: torch.Tensor, temperature: float) -> torch.Tensor:
     return temperature * torch.logsumexp(s / temperature, dim=-1)
 
 
-LR_SCHEDULES = ("constant", "cosine")
-
-
-def epoch_lr(base_lr: float, epoch: int, epochs: int, schedule: str = "constant") -> float:
-    """Learning rate of epoch ``epoch`` (0-based) of a training run of ``epochs`` epochs.
-
-    ``constant``: ``base_lr`` throughout (the paper). ``cosine``: ``base_lr * (1 + cos(pi * epoch / epochs)) / 2``,
-    from ``base_lr`` at epoch 0 down to nearly 0 at the last epoch (never exactly 0, so no epoch is wasted).
-    """
-    if schedule not in LR_SCHEDULES:
-        raise ValueError(f"lr schedule {schedule!r}: expected one of {LR_SCHEDULES}")
-    if schedule == "constant" or epochs <= 1:
-        return float(base_lr)
-    e = min(max(int(epoch), 0), int(epochs) - 1)
-    return float(base_lr) * 0.5 * (1.0 + math.cos(math.pi * e / int(epochs)))
+BOUNDARY_REDUCTIONS = ("boundary", "batch")  # detector.loss.boundary_reduction (see detector_losses)
 
 
 class DetectorLosses(NamedTuple):
@@ -244,7 +229,7 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
     else:
         l_ce = agg.new_zeros(())
     bmask = subset == 2
-    if boundary_reduction not in ("boundary", "batch"):
+    if boundary_reduction not in BOUNDARY_REDUCTIONS:
         raise ValueError(f"boundary_reduction={boundary_reduction!r}; use 'boundary' (the paper's) or 'batch'")
     if not bmask.any():
         l_b = agg.new_zeros(())

@@ -54,7 +54,7 @@ def config_problems(cfg: DictConfig) -> list[str]:
     choices = {"detector.newton.coordinates": ("box", "raw"), "autoencoder.box_from": ("train", "all"),
                "autoencoder.level1.activation": ("tanh", "linear"), "method.start": ("dc", "uncertain"),
                "labeling.backend": ("cpu", "gpu", "fcl", "auto"),
-               "detector.loss.boundary_reduction": ("boundary", "batch")}
+               "detector.loss.boundary_reduction": ("boundary", "batch")}  # nn.detector.BOUNDARY_REDUCTIONS
     for key, allowed in choices.items():
         if _get(cfg, key) is not None:
             need(key, lambda v, allowed=allowed: v in allowed, f"use one of {', '.join(allowed)}")
