@@ -388,6 +388,8 @@ def bench_neural(ctx: dict) -> dict:
         return {k: (v / 1e3 if k != "reps" else v) for k, v in us.items()}
 
     out["neural_vs_exact_speedup"] = _ratio(out["exact_ms_per_sample"], as_ms(out["detector_us_per_sample_b4096"]))
+    fast_notes: list[str] = []
+    out.update(_fast_forms(net, z, space, reps, out["exact_ms_per_sample"], as_ms, fast_notes))
     # the same detector exported to ONNX and run by ONNX Runtime (experiments.export), same codes and threads
     with tempfile.TemporaryDirectory() as tmp:
         ort_run = _onnx_detector(run, Path(tmp))
@@ -432,9 +434,54 @@ def bench_neural(ctx: dict) -> dict:
     ctx["notes"]["neural"] = (f"detector and latent space of {where}; "
                               f"exact reference: decode + full label of {n_exact} uniform codes on one core; "
                               f"detector: {torch.get_num_threads()} threads, torch and ONNX Runtime (`_onnx` keys); "
+                              "FastDetector (torch.compile, `_compiled` float32 and `_compiled_bf16` keys; eager and "
+                              "both interleaved call by call, `_vs_eager` per call; label flips and largest probability "
+                              f"change against eager on 100 000 uniform codes; {'; '.join(fast_notes)}); "
                               f"handler: {len(colliding)} codes the detector calls colliding, batch "
                               f"{int(handler_cfg.batch_size)}, conf/handler/default.yaml settings, detector only "
                               "(no verification)")
+    return out
+
+
+def _fast_forms(net, z: torch.Tensor, space, reps: int, exact_ms: dict, as_ms, notes: list[str]) -> dict:
+    """The detector's eager forward against FastDetector (torch.compile, float32 and bfloat16) at batch ``len(z)``,
+    interleaved call by call; their agreement with eager on 100 000 uniform codes; speedups over ``exact_ms``.
+    Keys ``detector_{compiled,compiled_bf16}_*``; a form that fails to compile is left out (``notes`` says why)."""
+    from neuralcol.nn.fast_inference import FastDetector, bf16_is_native
+
+    out: dict = {}
+    notes.append(f"bfloat16 {'native' if bf16_is_native('cpu') else 'emulated'} on this CPU")
+    forms = {}
+    for key, dtype in (("compiled", "float32"), ("compiled_bf16", "bfloat16")):
+        t0 = time.perf_counter()
+        try:
+            forms[key] = FastDetector(net, dtype, compile=True)
+        except RuntimeError as exc:
+            notes.append(f"{key}: {str(exc).splitlines()[0]}")
+            continue
+        out[f"detector_{key}_build_s"] = summarize([time.perf_counter() - t0])
+    if not forms:
+        return out
+    timings: dict[str, list[float]] = {"eager": [], **{k: [] for k in forms}}
+    calls = {"eager": lambda: net(z).prob, **{k: (lambda f=f: f(z).prob) for k, f in forms.items()}}
+    with torch.no_grad():
+        for _ in range(reps * 10 + 2):
+            for key, call in calls.items():
+                timings[key] += repeat(call, 1, warmup=0)
+        gen = torch.Generator().manual_seed(1)
+        codes = space.sample(100_000, generator=gen)
+        ref = torch.cat([net(c).prob for c in codes.split(4096)])
+        for key, f in forms.items():
+            prob = f(codes).prob
+            out[f"detector_{key}_label_flips"] = summarize([float(((prob > 0.5) != (ref > 0.5)).float().mean())])
+            out[f"detector_{key}_max_prob_diff"] = summarize([float((prob - ref).abs().max())])
+    eager = timings.pop("eager")[2:]
+    out["detector_eager_interleaved_us_per_sample_b4096"] = summarize(eager, 1e6 / len(z))
+    for key, t in timings.items():
+        t = t[2:]
+        out[f"detector_{key}_us_per_sample_b4096"] = summarize(t, 1e6 / len(z))
+        out[f"detector_{key}_vs_eager_b4096"] = summarize([a / b for a, b in zip(eager, t)])  # per interleaved call
+        out[f"neural_vs_exact_speedup_{key}"] = _ratio(exact_ms, as_ms(out[f"detector_{key}_us_per_sample_b4096"]))
     return out
 
 

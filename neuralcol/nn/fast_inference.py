@@ -7,7 +7,7 @@ inference after training (screening many codes, the inference benchmark):
 * ``compile=True``: the block forward is compiled for fixed block shapes (inductor fuses the bias, CELU and
   tanh element-wise work and vectorises the exponentials); the batch is cut into blocks of ``block`` rows and
   the last block is padded to the next power of two (at least 16 rows), so at most a handful of shapes are ever
-  compiled, each once, and a row's output does not depend on its batch. Same outputs as eager to float32
+  compiled, each once. Same outputs as eager to float32
   round-off (tests/test_fast_inference.py).
 * ``dtype="bfloat16"``: a bfloat16 copy of the weights (matrix products in bfloat16, outputs returned in
   float32). On CPUs with native bfloat16 dot products (AVX512-BF16, AMX) the matrix products run several times
@@ -28,6 +28,7 @@ from neuralcol.nn.detector import CollisionDetector, DetectorOutput
 
 DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 MIN_PADDED_ROWS = 16  # the smallest compiled block
+CPU_BLOCKS = {"float32": 1024, "bfloat16": 2048}  # default rows per compiled call on the CPU
 RECOMPILE_LIMIT = 64  # compiled variants per code object (dynamo's default: 8)
 
 
@@ -51,8 +52,9 @@ class FastDetector:
         dtype: ``"float32"`` (same outputs as ``net``) or ``"bfloat16"`` (faster where native, see the module).
         compile: compile the block forward with ``torch.compile`` (needs a C++ compiler on the CPU, Triton on
             CUDA); False runs the copy eagerly (for comparison, or where no compiler exists).
-        block: rows per compiled call (default: 512 on the CPU, where a block's intermediates then stay in the
-            L2 cache, 65536 on CUDA).
+        block: rows per compiled call (default on the CPU: 1024 in float32, 2048 in bfloat16, the fastest of
+            256-4096 on a 2-core AVX-512 machine, ``python -m bench.detector_forward RUN --fast-blocks ...``,
+            docs/model_size.md; on CUDA 65536).
 
     Raises:
         ValueError: an unknown ``dtype`` or a block size < 1.
@@ -64,7 +66,9 @@ class FastDetector:
         if dtype not in DTYPES:
             raise ValueError(f"dtype={dtype!r}; use one of {sorted(DTYPES)}")
         device = next(net.parameters()).device
-        block = int(block if block is not None else (512 if device.type == "cpu" else 65536))
+        if block is None:
+            block = CPU_BLOCKS[dtype] if device.type == "cpu" else 65536
+        block = int(block)
         if block < 1:
             raise ValueError(f"block={block} must be >= 1")
         self.dtype_name, self.dtype, self.block, self.device = dtype, DTYPES[dtype], block, device
