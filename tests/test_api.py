@@ -70,6 +70,23 @@ def test_detect_encode_decode_label(trained):
     np.testing.assert_array_equal(labels.pd, [ref.label(v).pd for v in verts.double().numpy()])
 
 
+def test_detect_fast_forms(trained):
+    """detect(..., fast=...): the compiled float32 copy agrees with the network, bfloat16 closely; bad names are
+    refused. Without a C++ compiler only the error path is checked."""
+    z = _codes(trained, 40, 3)
+    ref = trained.detect(z)
+    with pytest.raises(UserInputError, match="fast='float16'"):
+        trained.detect(z, fast="float16")
+    if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
+        pytest.skip("torch.compile on the CPU needs a C++ compiler")
+    f32 = trained.detect(z, fast="float32")
+    torch.testing.assert_close(f32.prob, ref.prob, rtol=0, atol=1e-5)
+    torch.testing.assert_close(f32.pd, ref.pd, rtol=1e-4, atol=1e-4)
+    bf = trained.detect(z, batch_size=16, fast="bfloat16")
+    assert float((bf.prob - ref.prob).abs().max()) < 0.05
+    assert set(trained._fast) == {"float32", "bfloat16"}  # built once, kept
+
+
 def test_resolve_latent_and_cartesian(trained):
     z = _codes(trained, 3, 1)
     verts = trained.decode(z)
