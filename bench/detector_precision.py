@@ -77,7 +77,8 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     rows = [evaluate(r) for r in args.runs]
-    print("| run | eager accuracy / FNR | compiled: Δacc, ΔFNR (points), flips | bfloat16: Δacc, ΔFNR (points), flips |")
+    print("| run | eager accuracy / FNR | compiled: Δacc, ΔFNR (points), flips "
+          "| bfloat16: Δacc, ΔFNR (points), flips |")
     print("|---|---:|---:|---:|")
     for r in rows:
         cells = [f"{r[f'{k}_accuracy_change_points']:+.3f}, {r[f'{k}_fnr_change_points']:+.3f}, "

@@ -434,9 +434,9 @@ def bench_neural(ctx: dict) -> dict:
     ctx["notes"]["neural"] = (f"detector and latent space of {where}; "
                               f"exact reference: decode + full label of {n_exact} uniform codes on one core; "
                               f"detector: {torch.get_num_threads()} threads, torch and ONNX Runtime (`_onnx` keys); "
-                              "FastDetector (torch.compile, `_compiled` float32 and `_compiled_bf16` keys; eager and "
-                              "both interleaved call by call, `_vs_eager` per call; label flips and largest probability "
-                              f"change against eager on 100 000 uniform codes; {'; '.join(fast_notes)}); "
+                              "FastDetector (torch.compile, `_compiled` float32 and `_compiled_bf16` keys; eager "
+                              "and both interleaved call by call, `_vs_eager` per call; label flips and largest "
+                              f"probability change against eager on 100 000 uniform codes; {'; '.join(fast_notes)}); "
                               f"handler: {len(colliding)} codes the detector calls colliding, batch "
                               f"{int(handler_cfg.batch_size)}, conf/handler/default.yaml settings, detector only "
                               "(no verification)")
