@@ -292,8 +292,9 @@ def projection_markdown(runs: list[dict]) -> list[str]:
                   "(`method.project: true`, `active_paper`) or the most uncertain candidates as drawn "
                   "(`project: false`, `active`'s default: they do not move). eps: the labeler's `boundary_eps`.", "",
                   "| \\|D_c\\| of the projecting detector | within eps | within 2 eps | uniform samples within 2 eps "
-                  "| colliding | moved level 1 / level 2 (half-ranges) | on a box face (level 1 / 2) |",
-                  "|---:|---:|---:|---:|---:|---:|---:|"]
+                  "| colliding | moved level 1 / level 2 (half-ranges) | on a box face (level 1 / 2) "
+                  "| boundary search within 2 eps: last points / all (`method.refine_steps`) |",
+                  "|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for size in sorted(by_size):
             rs = by_size[size]
 
@@ -301,11 +302,16 @@ def projection_markdown(runs: list[dict]) -> list[str]:
                 vals = [r[key] for r in rs if r.get(key) is not None]
                 return float(np.mean(vals)) if vals else float("nan")
 
-            uni = [r["uniform"]["within_2eps"] for r in rs if r.get("uniform")]
+            def sub(group, rs=rs):
+                vals = [r[group]["within_2eps"] for r in rs if r.get(group)]
+                return float(np.mean(vals)) if vals else float("nan")
+
+            searched = (f"{sub('refined'):.3f} / {sub('refined_all'):.3f}" if any(r.get("refined") for r in rs)
+                        else "–")
             lines.append(f"| {size} | {m('within_eps'):.3f} | {m('within_2eps'):.3f} | "
-                         f"{np.mean(uni) if uni else float('nan'):.3f} | {m('colliding'):.3f} | "
+                         f"{sub('uniform'):.3f} | {m('colliding'):.3f} | "
                          f"{m('moved_level1'):.3f} / {m('moved_level2'):.3f} | "
-                         f"{m('on_face_level1'):.3f} / {m('on_face_level2'):.3f} |")
+                         f"{m('on_face_level1'):.3f} / {m('on_face_level2'):.3f} | {searched} |")
         lines.append("")
     return lines
 

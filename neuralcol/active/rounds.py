@@ -23,6 +23,7 @@ import numpy as np
 from neuralcol.active.acquisition import UniformAcquisition
 from neuralcol.active.stopping import should_stop
 from neuralcol.data.collision_datamodule import CollisionDataModule
+from neuralcol.data.collision_store import ORIGIN_PROJECTED, ORIGIN_SEARCHED
 from neuralcol.utils.faults import fault_point
 from neuralcol.utils.files import atomic_path
 
@@ -186,8 +187,10 @@ class DataRounds(L.Callback):
         writer = getattr(getattr(trainer, "logger", None), "experiment", None)
         if writer is None or not hasattr(writer, "add_scalar"):
             return
-        flat = {**{k: v for k, v in quality.items() if not isinstance(v, dict)},
-                **{f"start_{k}": v for k, v in quality.get("start", {}).items()}}
+        flat = {k: v for k, v in quality.items() if not isinstance(v, dict)}
+        for group, sub in quality.items():  # start, uniform, refined, refined_all
+            if isinstance(sub, dict):
+                flat.update({f"{group}_{k}": v for k, v in sub.items()})
         for key, val in flat.items():
             if isinstance(val, (int, float)) and np.isfinite(val):
                 writer.add_scalar(f"projection/{key}", float(val), global_step=step)
@@ -206,7 +209,8 @@ class DataRounds(L.Callback):
                   "epochs": self.round_end_epoch - self.round_start_epoch + 1,
                   "label_seconds": self.seconds["label"], "train_seconds": self.seconds["train"],
                   "project_seconds": self.seconds["project"],
-                  "n_projected_total": int((rows.origin == 1).sum()),
+                  "n_projected_total": int((rows.origin == ORIGIN_PROJECTED).sum()),
+                  "n_searched_total": int((rows.origin == ORIGIN_SEARCHED).sum()),
                   "subset_counts": np.bincount(rows.subset, minlength=3).tolist()}
         if self.extra_eval is not None:
             record["handling"] = self.extra_eval(pl_module.net)

@@ -27,7 +27,7 @@ import numpy as np
 from neuralcol.errors import UserInputError
 from neuralcol.utils.faults import fault_point
 
-ORIGIN_UNIFORM, ORIGIN_PROJECTED = 0, 1
+ORIGIN_UNIFORM, ORIGIN_PROJECTED, ORIGIN_SEARCHED = 0, 1, 2  # uniform rows, active picks, boundary search
 VAL_EVERY = 5  # row ids with id % 5 == 4 are validation rows (20 %)
 
 

@@ -214,7 +214,8 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
                                        float(method["projected_fraction"]), det["newton"],
                                        start=str(method.get("start", "dc")),
                                        candidates=int(method.get("candidates", 10)),
-                                       project=bool(method.get("project", True)))
+                                       project=bool(method.get("project", True)),
+                                       refine_steps=int(method.get("refine_steps", 0)))
     elif method["acquisition"] == "uniform":
         acquire = UniformAcquisition(pool_path, oracle, seed)
     else:
