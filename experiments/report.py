@@ -261,7 +261,12 @@ def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) 
                   f"Neural detector {bench['detector_us_per_sample_b4096']:.1f} µs at batch 4096 and "
                   f"{bench['detector_us_per_sample_b1']:.0f} µs at batch 1; exact (decode + label, one core) "
                   f"{bench['exact_ms_per_sample']:.1f} ms: {bench['neural_vs_exact_speedup']:.0f}× "
-                  f"(measured {bench.get('date', '?')}).", ""]
+                  f"(measured {bench.get('date', '?')})." + "".join(
+                      f" {label}: {bench[f'detector_{key}_us_per_sample_b4096']:.2f} µs, "
+                      f"{bench[f'neural_vs_exact_speedup_{key}']:.0f}×."
+                      for key, label in (("compiled", "Compiled (`fast=\"float32\"`)"),
+                                         ("compiled_bf16", "Compiled bfloat16 (`fast=\"bfloat16\"`)"))
+                      if f"neural_vs_exact_speedup_{key}" in bench), ""]
     return "\n".join(lines)
 
 
