@@ -6,7 +6,8 @@ From a finished active run: ``picks`` uncertain codes (of ``candidates`` x picks
 whose detector logit is closest to 0, as ``method=active`` picks them), labeled exactly. Each is paired with
 the nearest row of the run's D_c (``dc.h5``, box-normalised distance) whose PD has the other sign, and the
 bracket is shrunk by the Illinois variant of regula falsi on the exact signed PD (continuous across the
-boundary, docs/labels.md), one exact label per step. Prints, after 0..steps labels per pick, the share of
+boundary, docs/labels.md), one exact label per step: :mod:`neuralcol.active.boundary_search`, the same code
+``method.refine_steps`` runs in the acquisition. Prints, after 0..steps labels per pick, the share of
 picks whose newest point lies within 1, 2 and 10 eps (``|PD| <= k eps``) and the median |PD| / eps.
 """
 
@@ -20,6 +21,8 @@ import h5py
 import numpy as np
 import torch
 
+from neuralcol.active.boundary_search import BracketSearch, nearest_opposite
+
 
 def search(run, picks: int, steps: int, candidates: int, seed: int = 0) -> dict:
     net = run.detector.eval()
@@ -32,33 +35,16 @@ def search(run, picks: int, steps: int, candidates: int, seed: int = 0) -> dict:
     with h5py.File(run.run_dir / "dc.h5", "r") as f:
         dz, dpd = np.asarray(f["z"], np.float64), np.asarray(f["pd"], np.float64)
     lo, hi = space.box_lo.double().numpy(), space.box_hi.double().numpy()
-    norm = lambda z: (z - lo) / (hi - lo)  # noqa: E731
     pd0 = run.label(run.decode(z0.float())).pd
     eps = float(run._labeler.eps)  # boundary_eps * diag, in mesh units (the labeler exists after the first label)
-    # partner: nearest D_c row with PD of the other sign (PD == 0 counts as colliding side: D_b)
-    zn, dn = norm(z0.numpy()), norm(dz)
-    partner = np.empty(picks, int)
-    for i in range(picks):
-        other = np.flatnonzero((dpd > 0) != (pd0[i] > 0))
-        partner[i] = other[np.argmin(((dn[other] - zn[i]) ** 2).sum(1))]
-    za, fa = z0.numpy(), pd0.copy()
-    zb, fb = dz[partner], dpd[partner]
-    newest = np.abs(pd0)
-    hist = [newest.copy()]
-    last = np.zeros(picks, int)  # which end the previous step replaced (+1 a, -1 b): Illinois halving
+    # the acquisition's own search (method.refine_steps): nearest D_c row on the other side, Illinois regula falsi
+    partner = nearest_opposite(z0.numpy(), pd0, dz, dpd, lo, hi)
+    search = BracketSearch(z0.numpy(), pd0, dz[partner], dpd[partner])
+    hist = [np.abs(pd0)]
     for _ in range(steps):
-        w = fa / (fa - fb)
-        z = za + w[:, None] * (zb - za)
-        f = run.label(run.decode(torch.as_tensor(z, dtype=torch.float32))).pd
-        same_a = np.sign(f) == np.sign(fa)
-        # replace the end with the same sign; halve the other end's value if it was kept twice (Illinois)
-        fb_new = np.where(same_a & (last == 1), fb / 2, fb)
-        fa_new = np.where(~same_a & (last == -1), fa / 2, fa)
-        za, fa = np.where(same_a[:, None], z, za), np.where(same_a, f, fa_new)
-        zb, fb = np.where(same_a[:, None], zb, z), np.where(same_a, fb_new, f)
-        last = np.where(same_a, 1, -1)
-        newest = np.abs(f)
-        hist.append(newest.copy())
+        z = search.propose()
+        search.update(z, run.label(run.decode(torch.as_tensor(z, dtype=torch.float32))).pd)
+        hist.append(np.abs(search.newest))
     rows = []
     for k, h in enumerate(hist):
         rows.append({"labels_per_pick": k + 1, "within_1eps": float(np.mean(h <= eps)),

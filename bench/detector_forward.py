@@ -40,18 +40,12 @@ def _split_one_block(net: CollisionDetector, z: torch.Tensor) -> torch.Tensor:
         del net.inference_block
 
 
-def compare(net: CollisionDetector, batch: int, repeats: int, seed: int = 0) -> dict:
-    """Median µs per sample of each form at ``batch`` and the largest probability difference to the first."""
-    gen = torch.Generator().manual_seed(seed)
-    lo, hi = net.center - net.half_range, net.center + net.half_range
-    z = lo + (hi - lo) * torch.rand(batch, net.latent_dim, generator=gen)
-    forms = {"concat": lambda: concat_forward(net, z), "split": lambda: _split_one_block(net, z),
-             "split_blocked": lambda: net(z).prob}
-    times = {name: [] for name in forms}
+def interleaved(forms: dict, batch: int, repeats: int, warmup: int) -> dict[str, list[float]]:
+    """µs per sample of each call in ``forms`` (name -> callable on a batch of ``batch`` rows), the forms
+    alternating call by call so that a noisy machine slows them alike; ``warmup`` untimed rounds first."""
+    times: dict[str, list[float]] = {name: [] for name in forms}
     with torch.inference_mode():
-        ref = forms["concat"]()
-        diff = max(float((f() - ref).abs().max()) for f in forms.values())
-        for _ in range(3):  # warm-up
+        for _ in range(warmup):
             for f in forms.values():
                 f()
         for _ in range(repeats):
@@ -59,6 +53,20 @@ def compare(net: CollisionDetector, batch: int, repeats: int, seed: int = 0) -> 
                 t0 = time.perf_counter()
                 f()
                 times[name].append((time.perf_counter() - t0) / batch * 1e6)
+    return times
+
+
+def compare(net: CollisionDetector, batch: int, repeats: int, seed: int = 0) -> dict:
+    """Median µs per sample of each form at ``batch`` and the largest probability difference to the first."""
+    gen = torch.Generator().manual_seed(seed)
+    lo, hi = net.center - net.half_range, net.center + net.half_range
+    z = lo + (hi - lo) * torch.rand(batch, net.latent_dim, generator=gen)
+    forms = {"concat": lambda: concat_forward(net, z), "split": lambda: _split_one_block(net, z),
+             "split_blocked": lambda: net(z).prob}
+    with torch.inference_mode():
+        ref = forms["concat"]()
+        diff = max(float((f() - ref).abs().max()) for f in forms.values())
+    times = interleaved(forms, batch, repeats, warmup=3)
     med = {name: float(np.median(t)) for name, t in times.items()}
     return {"batch": batch, "repeats": repeats, "threads": torch.get_num_threads(),
             "block": net.inference_block, **{f"{k}_us_per_sample": v for k, v in med.items()},
@@ -82,16 +90,7 @@ def compare_fast_blocks(net: CollisionDetector, batch: int, repeats: int, blocks
         for block in blocks:
             fast = FastDetector(net, dtype, compile=True, block=block)
             forms[f"{dtype}_{block}"] = lambda f=fast: f(z).prob
-    times = {name: [] for name in forms}
-    with torch.inference_mode():
-        for _ in range(2):
-            for f in forms.values():
-                f()
-        for _ in range(repeats):
-            for name, f in forms.items():
-                t0 = time.perf_counter()
-                f()
-                times[name].append((time.perf_counter() - t0) / batch * 1e6)
+    times = interleaved(forms, batch, repeats, warmup=2)
     row = {"batch": batch, "repeats": repeats, "threads": torch.get_num_threads()}
     for name, t in times.items():
         row[f"{name}_us_per_sample"] = float(np.median(t))
