@@ -18,7 +18,10 @@ import h5py
 import numpy as np
 import torch
 
-FORMS = (("eager", None), ("compiled", "float32"), ("compiled_bf16", "bfloat16"))
+from bench.run import RECHECK_BAND
+
+FORMS = (("eager", None, None), ("compiled", "float32", None), ("compiled_bf16", "bfloat16", None),
+         ("compiled_bf16_checked", "bfloat16", RECHECK_BAND))
 
 
 def test_rows(run) -> tuple[np.ndarray, np.ndarray]:
@@ -51,9 +54,9 @@ def evaluate(run_dir: Path) -> dict:
     zt = torch.as_tensor(z)
     row: dict = {"run": str(run_dir), "n": len(z)}
     preds = {}
-    for name, dtype in FORMS:
+    for name, dtype, band in FORMS:
         with torch.no_grad():
-            logit = (net(zt).logit if dtype is None else FastDetector(net, dtype)(zt).logit).numpy()
+            logit = (net(zt).logit if dtype is None else FastDetector(net, dtype, recheck_band=band)(zt).logit).numpy()
         if name == "eager":
             err = float(np.abs(logit - stored["logit"]).max())
             if err > 1e-4 or not np.array_equal(collides, stored["collides"]):
@@ -77,13 +80,13 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     rows = [evaluate(r) for r in args.runs]
-    print("| run | eager accuracy / FNR | compiled: Δacc, ΔFNR (points), flips "
-          "| bfloat16: Δacc, ΔFNR (points), flips |")
-    print("|---|---:|---:|---:|")
+    forms = [name for name, _, _ in FORMS[1:]]
+    print("| run | eager accuracy / FNR | " + " | ".join(f"{k}: Δacc, ΔFNR (points), flips" for k in forms) + " |")
+    print("|---|---:|" + "---:|" * len(forms))
     for r in rows:
         cells = [f"{r[f'{k}_accuracy_change_points']:+.3f}, {r[f'{k}_fnr_change_points']:+.3f}, "
-                 f"{100 * r[f'{k}_label_flips']:.3f} %" for k in ("compiled", "compiled_bf16")]
-        print(f"| {r['run']} | {r['eager_accuracy']:.4f} / {r['eager_fnr']:.4f} | {cells[0]} | {cells[1]} |")
+                 f"{100 * r[f'{k}_label_flips']:.3f} %" for k in forms]
+        print(f"| {r['run']} | {r['eager_accuracy']:.4f} / {r['eager_fnr']:.4f} | " + " | ".join(cells) + " |")
     worst = {k: max(abs(r[k]) for r in rows) for k in rows[0] if k.endswith("change_points")}
     print("largest |change| over the runs (points): " + ", ".join(f"{k} {v:.3f}" for k, v in worst.items()))
     if args.out:

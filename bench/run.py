@@ -434,13 +434,18 @@ def bench_neural(ctx: dict) -> dict:
     ctx["notes"]["neural"] = (f"detector and latent space of {where}; "
                               f"exact reference: decode + full label of {n_exact} uniform codes on one core; "
                               f"detector: {torch.get_num_threads()} threads, torch and ONNX Runtime (`_onnx` keys); "
-                              "FastDetector (torch.compile, `_compiled` float32 and `_compiled_bf16` keys; eager "
-                              "and both interleaved call by call, `_vs_eager` per call; label flips and largest "
+                              "FastDetector (torch.compile, `_compiled` float32, `_compiled_bf16` and "
+                              "`_compiled_bf16_checked` (float32 recheck of logits within "
+                              f"{RECHECK_BAND} of 0) keys; eager and all three interleaved call by call, "
+                              "`_vs_eager` per call; label flips and largest "
                               f"probability change against eager on 100 000 uniform codes; {'; '.join(fast_notes)}); "
                               f"handler: {len(colliding)} codes the detector calls colliding, batch "
                               f"{int(handler_cfg.batch_size)}, conf/handler/default.yaml settings, detector only "
                               "(no verification)")
     return out
+
+
+RECHECK_BAND = 0.5  # logit band recomputed in float32 by `_compiled_bf16_checked` (registered, stop 26)
 
 
 def _fast_forms(net, z: torch.Tensor, space, reps: int, exact_ms: dict, as_ms, notes: list[str]) -> dict:
@@ -452,10 +457,11 @@ def _fast_forms(net, z: torch.Tensor, space, reps: int, exact_ms: dict, as_ms, n
     out: dict = {}
     notes.append(f"bfloat16 {'native' if bf16_is_native('cpu') else 'emulated'} on this CPU")
     forms = {}
-    for key, dtype in (("compiled", "float32"), ("compiled_bf16", "bfloat16")):
+    for key, dtype, band in (("compiled", "float32", None), ("compiled_bf16", "bfloat16", None),
+                             ("compiled_bf16_checked", "bfloat16", RECHECK_BAND)):
         t0 = time.perf_counter()
         try:
-            forms[key] = FastDetector(net, dtype, compile=True)
+            forms[key] = FastDetector(net, dtype, compile=True, recheck_band=band)
         except RuntimeError as exc:
             notes.append(f"{key}: {str(exc).splitlines()[0]}")
             continue
@@ -475,6 +481,8 @@ def _fast_forms(net, z: torch.Tensor, space, reps: int, exact_ms: dict, as_ms, n
             prob = f(codes).prob
             out[f"detector_{key}_label_flips"] = summarize([float(((prob > 0.5) != (ref > 0.5)).float().mean())])
             out[f"detector_{key}_max_prob_diff"] = summarize([float((prob - ref).abs().max())])
+            if f.recheck_band is not None:
+                out[f"detector_{key}_rechecked_fraction"] = summarize([f.rechecked_fraction])
     eager = timings.pop("eager")[2:]
     out["detector_eager_interleaved_us_per_sample_b4096"] = summarize(eager, 1e6 / len(z))
     for key, t in timings.items():

@@ -56,6 +56,26 @@ def test_bfloat16_copy_is_close_and_returns_float32():
     assert next(det.parameters()).dtype == torch.float32  # the original is left as it was
 
 
+def test_bfloat16_with_a_float32_recheck_keeps_float32_labels_near_the_boundary():
+    det, z = _detector(1)
+    with torch.no_grad():
+        ref = det(z)
+    plain = FastDetector(det, "bfloat16", compile=False, block=128)(z)
+    band = 4 * float((plain.logit - ref.logit).abs().max())  # wider than the largest bfloat16 error
+    fast = FastDetector(det, "bfloat16", compile=False, block=128, recheck_band=band)
+    out = fast(z)
+    near = plain.logit.abs() < band
+    assert 0 < fast.rechecked_fraction < 1 and fast.rechecked_fraction == pytest.approx(float(near.float().mean()))
+    torch.testing.assert_close(out.prob[near], ref.prob[near], rtol=0, atol=1e-6)  # float32's outputs there
+    torch.testing.assert_close(out.s[near], ref.s[near], rtol=0, atol=1e-5)
+    torch.testing.assert_close(out.prob[~near], plain.prob[~near], rtol=0, atol=0)  # bfloat16's elsewhere
+    assert torch.equal(out.logit > 0, ref.logit > 0)
+    assert "recheck_band" in repr(fast)
+    assert FastDetector(det, "float32", compile=False, recheck_band=1.0).recheck_band is None  # nothing to recheck
+    with pytest.raises(ValueError, match="recheck_band=-1"):
+        FastDetector(det, "bfloat16", compile=False, recheck_band=-1)
+
+
 @pytest.mark.skipif(not HAS_CXX, reason="torch.compile on the CPU needs a C++ compiler")
 def test_compiled_copy_matches_eager():
     det, z = _detector(2)

@@ -55,14 +55,18 @@ class FastDetector:
         block: rows per compiled call (default on the CPU: 1024 in float32, 2048 in bfloat16, the fastest of
             256-4096 on a 2-core AVX-512 machine, ``python -m bench.detector_forward RUN --fast-blocks ...``,
             docs/model_size.md; on CUDA 65536).
+        recheck_band: bfloat16 only: rows whose bfloat16 logit lies within this distance of 0 are recomputed by a
+            float32 copy (compiled like this one), so their outputs, and every predicted label whose bfloat16
+            logit error is below the band, are float32's. None: no recheck. ``rechecked_fraction`` holds the
+            share of rows the last call recomputed.
 
     Raises:
-        ValueError: an unknown ``dtype`` or a block size < 1.
+        ValueError: an unknown ``dtype``, a block size < 1 or a negative ``recheck_band``.
         RuntimeError: ``compile=True`` and compiling fails (the message says how to go on without it).
     """
 
     def __init__(self, net: CollisionDetector, dtype: str = "float32", compile: bool = True,
-                 block: int | None = None):
+                 block: int | None = None, recheck_band: float | None = None):
         if dtype not in DTYPES:
             raise ValueError(f"dtype={dtype!r}; use one of {sorted(DTYPES)}")
         device = next(net.parameters()).device
@@ -71,7 +75,12 @@ class FastDetector:
         block = int(block)
         if block < 1:
             raise ValueError(f"block={block} must be >= 1")
+        if recheck_band is not None and float(recheck_band) < 0:
+            raise ValueError(f"recheck_band={recheck_band} must be >= 0")
         self.dtype_name, self.dtype, self.block, self.device = dtype, DTYPES[dtype], block, device
+        self.recheck_band = None if recheck_band is None or dtype == "float32" else float(recheck_band)
+        self._recheck = None if self.recheck_band is None else FastDetector(net, "float32", compile=compile)
+        self.rechecked_fraction = 0.0
         self.compiled = bool(compile)
         self.net = copy.deepcopy(net).eval().to(self.dtype)
         for p in self.net.parameters():
@@ -106,10 +115,23 @@ class FastDetector:
 
     def __call__(self, z_all: torch.Tensor) -> DetectorOutput:
         """Codes (B, D) (any float dtype, moved to the detector's device) -> probabilities, logits and S_i in
-        float32, computed block by block."""
+        float32, computed block by block (then the rows within ``recheck_band`` of 0 again in float32)."""
         if z_all.ndim != 2 or z_all.shape[1] != self.latent_dim:
             raise ValueError(f"z_all has shape {tuple(z_all.shape)}, expected (B, {self.latent_dim})")
         z = z_all.to(self.device, torch.float32)
+        out = self._blocks(z)
+        if self._recheck is None or len(z) == 0:
+            return out
+        near = torch.nonzero(out.logit.abs() < self.recheck_band).flatten()
+        self.rechecked_fraction = len(near) / len(z)
+        if len(near):
+            exact = self._recheck(z[near])
+            with torch.inference_mode():  # the outputs are inference tensors
+                for full, part in zip(out, exact):
+                    full[near] = part
+        return out
+
+    def _blocks(self, z: torch.Tensor) -> DetectorOutput:
         n = len(z)
         outs = []
         with torch.inference_mode():
@@ -126,5 +148,6 @@ class FastDetector:
         return DetectorOutput(*(torch.cat(t) for t in zip(*outs)))
 
     def __repr__(self) -> str:
-        return (f"FastDetector(dtype={self.dtype_name}, compiled={self.compiled}, block={self.block}, "
+        band = "" if self.recheck_band is None else f", recheck_band={self.recheck_band}"
+        return (f"FastDetector(dtype={self.dtype_name}, compiled={self.compiled}, block={self.block}{band}, "
                 f"device={self.device})")
