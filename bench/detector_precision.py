@@ -18,7 +18,7 @@ import h5py
 import numpy as np
 import torch
 
-from bench.run import RECHECK_BAND
+from neuralcol.nn.fast_inference import RECHECK_BAND
 
 FORMS = (("eager", None, None), ("compiled", "float32", None), ("compiled_bf16", "bfloat16", None),
          ("compiled_bf16_checked", "bfloat16", RECHECK_BAND))

@@ -388,6 +388,8 @@ def bench_neural(ctx: dict) -> dict:
         return {k: (v / 1e3 if k != "reps" else v) for k, v in us.items()}
 
     out["neural_vs_exact_speedup"] = _ratio(out["exact_ms_per_sample"], as_ms(out["detector_us_per_sample_b4096"]))
+    from neuralcol.nn.fast_inference import RECHECK_BAND
+
     fast_notes: list[str] = []
     out.update(_fast_forms(net, z, space, reps, out["exact_ms_per_sample"], as_ms, fast_notes))
     # the same detector exported to ONNX and run by ONNX Runtime (experiments.export), same codes and threads
@@ -445,14 +447,11 @@ def bench_neural(ctx: dict) -> dict:
     return out
 
 
-RECHECK_BAND = 0.5  # logit band recomputed in float32 by `_compiled_bf16_checked` (registered, stop 26)
-
-
 def _fast_forms(net, z: torch.Tensor, space, reps: int, exact_ms: dict, as_ms, notes: list[str]) -> dict:
     """The detector's eager forward against FastDetector (torch.compile, float32 and bfloat16) at batch ``len(z)``,
     interleaved call by call; their agreement with eager on 100 000 uniform codes; speedups over ``exact_ms``.
     Keys ``detector_{compiled,compiled_bf16}_*``; a form that fails to compile is left out (``notes`` says why)."""
-    from neuralcol.nn.fast_inference import FastDetector, bf16_is_native
+    from neuralcol.nn.fast_inference import RECHECK_BAND, FastDetector, bf16_is_native
 
     out: dict = {}
     notes.append(f"bfloat16 {'native' if bf16_is_native('cpu') else 'emulated'} on this CPU")

@@ -222,10 +222,12 @@ class TrainedRun:
         """The detector on meshes (B, V, 3) (encoded first) or codes (B, D), in batches of ``batch_size``.
 
         ``fast``: None (the eager float32 network, as in training and in the reported metrics), ``"float32"``
-        (compiled with torch.compile: the same outputs to round-off, ~1.4x faster at batch 4096 on 2 CPU cores) or
+        (compiled with torch.compile: the same outputs to round-off, ~1.4x faster at batch 4096 on 2 CPU cores),
         ``"bfloat16"`` (compiled, bfloat16 weights: ~2.3x faster where bfloat16 is native; about 0.1 % of labels
-        flip). The first call with a ``fast`` form compiles it (seconds); :class:`~neuralcol.nn.fast_inference.
-        FastDetector` and docs/model_size.md have the measurements."""
+        flip) or ``"bfloat16_checked"`` (bfloat16, with the rows whose logit lies near 0 recomputed in float32:
+        ~1.9x, no label flipped on SCAPE's test sets). The first call with a ``fast`` form compiles it
+        (seconds); :class:`~neuralcol.nn.fast_inference.FastDetector` and docs/model_size.md have the
+        measurements."""
         x = vertices_or_codes
         z = self.encode(x) if self._is_vertices(x) else self._codes(x)
         net = self.detector if fast is None else self._fast_detector(fast)
@@ -241,13 +243,14 @@ class TrainedRun:
         return Detection(*(torch.cat(t) for t in zip(*parts)))
 
     def _fast_detector(self, dtype: str):
-        """The compiled copy of the detector in ``dtype`` (built on first use, then kept)."""
-        from neuralcol.nn.fast_inference import DTYPES, FastDetector
+        """The compiled copy of the detector for the form ``dtype`` (built on first use, then kept)."""
+        from neuralcol.nn.fast_inference import FORMS, FastDetector
 
-        if dtype not in DTYPES:
-            raise UserInputError(f"fast={dtype!r}; use None, 'float32' or 'bfloat16'")
+        if dtype not in FORMS:
+            raise UserInputError(f"fast={dtype!r}; use None or one of {sorted(FORMS)}")
         if dtype not in self._fast:
-            self._fast[dtype] = FastDetector(self.detector, dtype)
+            name, band = FORMS[dtype]
+            self._fast[dtype] = FastDetector(self.detector, name, recheck_band=band)
         return self._fast[dtype]
 
     # ------------------------------------------------------------------ exact labels

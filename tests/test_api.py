@@ -84,7 +84,9 @@ def test_detect_fast_forms(trained):
     torch.testing.assert_close(f32.pd, ref.pd, rtol=1e-4, atol=1e-4)
     bf = trained.detect(z, batch_size=16, fast="bfloat16")
     assert float((bf.prob - ref.prob).abs().max()) < 0.05
-    assert set(trained._fast) == {"float32", "bfloat16"}  # built once, kept
+    checked = trained.detect(z, fast="bfloat16_checked")
+    assert torch.equal(checked.prob > 0.5, ref.prob > 0.5)
+    assert set(trained._fast) == {"float32", "bfloat16", "bfloat16_checked"}  # built once, kept
 
 
 def test_resolve_latent_and_cartesian(trained):

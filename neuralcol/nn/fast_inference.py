@@ -28,6 +28,10 @@ from neuralcol.nn.detector import CollisionDetector, DetectorOutput
 
 DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 MIN_PADDED_ROWS = 16  # the smallest compiled block
+RECHECK_BAND = 0.5  # logit band recomputed in float32 by the "bfloat16_checked" form (> 2x the largest bfloat16
+# logit error measured on SCAPE's detectors, 0.22; no test prediction flips: docs/model_size.md)
+FORMS = {"float32": ("float32", None), "bfloat16": ("bfloat16", None),
+         "bfloat16_checked": ("bfloat16", RECHECK_BAND)}  # name -> (dtype, recheck_band): run.detect(fast=name)
 CPU_BLOCKS = {"float32": 1024, "bfloat16": 2048}  # default rows per compiled call on the CPU
 RECOMPILE_LIMIT = 64  # compiled variants per code object (dynamo's default: 8)
 
