@@ -18,10 +18,7 @@ import h5py
 import numpy as np
 import torch
 
-from neuralcol.nn.fast_inference import RECHECK_BAND
-
-FORMS = (("eager", None, None), ("compiled", "float32", None), ("compiled_bf16", "bfloat16", None),
-         ("compiled_bf16_checked", "bfloat16", RECHECK_BAND))
+from bench.run import FAST_KEYS
 
 
 def test_rows(run) -> tuple[np.ndarray, np.ndarray]:
@@ -54,9 +51,9 @@ def evaluate(run_dir: Path) -> dict:
     zt = torch.as_tensor(z)
     row: dict = {"run": str(run_dir), "n": len(z)}
     preds = {}
-    for name, dtype, band in FORMS:
+    for name, form in {"eager": None, **FAST_KEYS}.items():
         with torch.no_grad():
-            logit = (net(zt).logit if dtype is None else FastDetector(net, dtype, recheck_band=band)(zt).logit).numpy()
+            logit = (net(zt).logit if form is None else FastDetector.from_form(net, form)(zt).logit).numpy()
         if name == "eager":
             err = float(np.abs(logit - stored["logit"]).max())
             if err > 1e-4 or not np.array_equal(collides, stored["collides"]):
@@ -80,7 +77,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     rows = [evaluate(r) for r in args.runs]
-    forms = [name for name, _, _ in FORMS[1:]]
+    forms = list(FAST_KEYS)
     print("| run | eager accuracy / FNR | " + " | ".join(f"{k}: Δacc, ΔFNR (points), flips" for k in forms) + " |")
     print("|---|---:|" + "---:|" * len(forms))
     for r in rows:

@@ -447,20 +447,23 @@ def bench_neural(ctx: dict) -> dict:
     return out
 
 
+FAST_KEYS = {"compiled": "float32", "compiled_bf16": "bfloat16",
+             "compiled_bf16_checked": "bfloat16_checked"}  # bench key -> FastDetector form (run.detect(fast=...))
+
+
 def _fast_forms(net, z: torch.Tensor, space, reps: int, exact_ms: dict, as_ms, notes: list[str]) -> dict:
     """The detector's eager forward against FastDetector (torch.compile, float32 and bfloat16) at batch ``len(z)``,
     interleaved call by call; their agreement with eager on 100 000 uniform codes; speedups over ``exact_ms``.
     Keys ``detector_{compiled,compiled_bf16}_*``; a form that fails to compile is left out (``notes`` says why)."""
-    from neuralcol.nn.fast_inference import RECHECK_BAND, FastDetector, bf16_is_native
+    from neuralcol.nn.fast_inference import FastDetector, bf16_is_native
 
     out: dict = {}
     notes.append(f"bfloat16 {'native' if bf16_is_native('cpu') else 'emulated'} on this CPU")
     forms = {}
-    for key, dtype, band in (("compiled", "float32", None), ("compiled_bf16", "bfloat16", None),
-                             ("compiled_bf16_checked", "bfloat16", RECHECK_BAND)):
+    for key, form in FAST_KEYS.items():
         t0 = time.perf_counter()
         try:
-            forms[key] = FastDetector(net, dtype, compile=True, recheck_band=band)
+            forms[key] = FastDetector.from_form(net, form, compile=True)
         except RuntimeError as exc:
             notes.append(f"{key}: {str(exc).splitlines()[0]}")
             continue

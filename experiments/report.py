@@ -265,7 +265,9 @@ def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) 
                       f" {label}: {bench[f'detector_{key}_us_per_sample_b4096']:.2f} µs, "
                       f"{bench[f'neural_vs_exact_speedup_{key}']:.0f}×."
                       for key, label in (("compiled", "Compiled (`fast=\"float32\"`)"),
-                                         ("compiled_bf16", "Compiled bfloat16 (`fast=\"bfloat16\"`)"))
+                                         ("compiled_bf16", "Compiled bfloat16 (`fast=\"bfloat16\"`)"),
+                                         ("compiled_bf16_checked", "With a float32 recheck near 0 "
+                                          "(`fast=\"bfloat16_checked\"`)"))
                       if f"neural_vs_exact_speedup_{key}" in bench), ""]
     return "\n".join(lines)
 

@@ -242,16 +242,15 @@ class TrainedRun:
             return Detection(empty, empty, empty, z.new_zeros(0, self.space.n_parts))
         return Detection(*(torch.cat(t) for t in zip(*parts)))
 
-    def _fast_detector(self, dtype: str):
-        """The compiled copy of the detector for the form ``dtype`` (built on first use, then kept)."""
+    def _fast_detector(self, form: str):
+        """The compiled copy of the detector for ``form`` (built on first use, then kept)."""
         from neuralcol.nn.fast_inference import FORMS, FastDetector
 
-        if dtype not in FORMS:
-            raise UserInputError(f"fast={dtype!r}; use None or one of {sorted(FORMS)}")
-        if dtype not in self._fast:
-            name, band = FORMS[dtype]
-            self._fast[dtype] = FastDetector(self.detector, name, recheck_band=band)
-        return self._fast[dtype]
+        if form not in FORMS:
+            raise UserInputError(f"fast={form!r}; use None or one of {sorted(FORMS)}")
+        if form not in self._fast:
+            self._fast[form] = FastDetector.from_form(self.detector, form)
+        return self._fast[form]
 
     # ------------------------------------------------------------------ exact labels
     def _label_pool(self):

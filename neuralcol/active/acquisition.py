@@ -220,8 +220,7 @@ class ProjectedAcquisition(UniformAcquisition):
             zq = search.propose()
             seconds += time.perf_counter() - t1
             lab = self.oracle(torch.as_tensor(zq, dtype=torch.float32), desc="labeling boundary search")
-            ok = np.ones(len(zq), bool) if lab.ok is None else np.asarray(lab.ok, bool)
-            search.update(np.asarray(lab.z, np.float64), np.where(ok, lab.pd, np.nan), ok)
+            search.update(lab.z, lab.pd, lab.ok)  # failed rows (ok False) leave their bracket as it was
             n_failed += lab.n_failed
             lab = lab.without_failures()
             parts.append(Acquired(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset,
@@ -231,7 +230,7 @@ class ProjectedAcquisition(UniformAcquisition):
         info["n_projected"] = int(len(out.z))
         info["n_projected_label_failures"] = int(info["n_projected_label_failures"]) + n_failed
         info["n_label_failures"] = int(info["n_label_failures"]) + n_failed
-        searched = np.concatenate([p.pd for p in parts[1:]]) if len(parts) > 1 else np.zeros(0)
+        searched = out.pd[len(first.z):]
         final = search.newest[np.isfinite(search.newest)]
         info["projection"] = {**info["projection"], "refined": {"n": int(len(final)), **boundary_shares(final, eps)},
                               "refined_all": {"n": int(len(searched)), **boundary_shares(searched, eps)}}

@@ -109,6 +109,15 @@ class FastDetector:
                     f"{str(exc).splitlines()[0] if str(exc) else ''}); install a C++ compiler (CPU) or Triton "
                     "(CUDA), or use FastDetector(..., compile=False)") from exc
 
+    @classmethod
+    def from_form(cls, net: CollisionDetector, form: str, **kwargs) -> FastDetector:
+        """The copy for one of :data:`FORMS` (``"float32"``, ``"bfloat16"``, ``"bfloat16_checked"``); ``kwargs``:
+        ``compile``, ``block``."""
+        if form not in FORMS:
+            raise ValueError(f"form={form!r}; use one of {sorted(FORMS)}")
+        dtype, band = FORMS[form]
+        return cls(net, dtype, recheck_band=band, **kwargs)
+
     def _block_forward(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         out = self.net._forward(z.to(self.dtype))
         return out.prob.float(), out.logit.float(), out.s.float()
