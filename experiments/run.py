@@ -33,9 +33,10 @@ from neuralcol.geometry.mesh_io import write_meshes
 from neuralcol.metrics.plots import partition_colors, render_mesh_png
 from neuralcol.metrics.reconstruction import relative_vertex_error
 from neuralcol.stages.autoencoder import train_or_load_latent_space
-from neuralcol.stages.detector import load_detector, shared_test_set, train_detector
+from neuralcol.stages.detector import load_detector, samples_cache_dir, shared_test_set, train_detector
 from neuralcol.stages.handling import alm_settings, evaluate_handler, export_handling
 from neuralcol.stages.model_size import search_model_size, validate_model_size
+from neuralcol.stages.realistic import evaluate_realistic, realistic_set
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.resume import RunDirLock, find_interrupted_run
 from neuralcol.utils.seeding import seed_everything
@@ -117,6 +118,20 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
             net, _ = load_detector(run_dir / "detector.pt")
             handling_metrics, arrays = evaluate_handler(net, oracle, z_user, pd_user, settings,
                                                         int(cfg.handler.batch_size), list(cfg.handler.verify_margins))
+        # the realistic set (issue 27): meshes nobody trained on, labeled exactly, next to U(Z)
+        realistic_metrics = None
+        if cfg.realistic.enabled:
+            t_r = time.perf_counter()
+            meshes, pd_real, real_cached = realistic_set(
+                ds.vertices.numpy(), feats.features.numpy(), feats.acap, ae_report["val_index"], pool,
+                cfg.realistic, samples_cache_dir(cfg.paths.cache_dir, ae_report["cache_key"], sample_labeler))
+            net, _ = load_detector(run_dir / "detector.pt")
+            realistic_metrics, real_arrays = evaluate_realistic(
+                space, net, meshes, pd_real, pool, float(sample_labeler.eps), cfg.realistic, settings,
+                list(cfg.handler.verify_margins), int(cfg.handler.batch_size))
+            realistic_metrics.update({"from_cache": real_cached, "stage_seconds": time.perf_counter() - t_r})
+            np.savez_compressed(run_dir / "realistic_predictions.npz", **real_arrays)
+            log_realistic(logger, realistic_metrics, det["rounds"][-1]["dataset_size"])
     if handling_metrics is not None:
         export_handling(run_dir / "handling", arrays, space, sample_labeler, int(cfg.handler.n_examples),
                         title=f"{cfg.dataset.name}, {cfg.method.name}", pd_sub_before=pd_sub_user)
@@ -147,12 +162,48 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "detector": {**det["detector"], "stage_seconds": t_det},
         "rounds": det["rounds"],
         "handling": handling_metrics,
+        "realistic": realistic_metrics,
     }
     if size_doc is not None:
         metrics["model_size"] = {k: size_doc[k] for k in ("chosen", "chosen_accuracy", "best_accuracy", "budget",
                                                             "default", "rule")}
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
+
+
+def log_realistic(logger, m: dict, step: int) -> None:
+    """TensorBoard scalars of the realistic set under ``realistic/`` (at the final |D_c|)."""
+    scalars = {f"realistic/{k}": m["detection"].get(k) for k in ("accuracy", "fnr", "fpr", "skill")}
+    scalars["realistic/round_trip_agreement"] = m["round_trip"]["agreement"]
+    scalars["realistic/out_of_box"] = m["round_trip"]["out_of_box"]
+    h = m.get("handling")
+    if h:
+        scalars.update({"realistic/handler_resolved_detector_only": h["detector_only"]["resolved_rate"],
+                        "realistic/handler_resolved_verified": h["verified"]["resolved_rate"],
+                        "realistic/handler_displacement_median_frac": h["displacement_median_frac"]})
+    for k, v in scalars.items():
+        if v is not None and np.isfinite(v):
+            logger.experiment.add_scalar(k, float(v), global_step=step)
+
+
+def print_realistic(r: dict | None) -> None:
+    if not r:
+        return
+    d, rt = r["detection"], r["round_trip"]
+    print(f"realistic meshes (nobody trained on them; {r['n_clear']} of {r['n']} clear, |PD| >= "
+          f"{r['clear_eps']:g} eps; {r['base_rate_clear']:.1%} collide):")
+    if d.get("n"):
+        print(f"  detector: accuracy {d['accuracy']:.4f}, FNR {d['fnr']:.4f}, FPR {d['fpr']:.4f}, skill "
+              f"{d['skill']:.3f} (majority {d['majority_accuracy']:.4f})")
+    agree = "n/a" if rt["agreement"] is None else f"{rt['agreement']:.1%}"
+    oob = "n/a" if rt["out_of_box"] is None else f"{rt['out_of_box']:.1%}"
+    print(f"  round trip keeps the exact label of {agree}; codes outside the box {oob}")
+    h = r.get("handling")
+    if h:
+        med = h["displacement_median_frac"]
+        print(f"  resolve on {h['n']} colliding meshes: collision-free {h['detector_only']['resolved_rate']:.1%} "
+              f"detector-guided, {h['verified']['resolved_rate']:.1%} verified; median vertex displacement "
+              f"{'n/a' if med is None else f'{med:.2%}'} of the diagonal")
 
 
 def print_summary(metrics: dict, run_dir: Path) -> None:
@@ -186,6 +237,7 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
                   f"  {m['mean_embedding_diff']:>17.1f}  {1e3 * m['seconds_per_mesh']:>11.1f}")
         print(f"  (detector only: {h['n_nonfinite']} non-finite, {h['n_detector_infeasible']} still predicted "
               f"colliding, {h['n_not_converged']} not converged; verified includes the exact labeling)")
+    print_realistic(metrics.get("realistic"))
     print(f"results: {run_dir}   (tensorboard --logdir {run_dir / 'tensorboard'})")
 
 

@@ -50,10 +50,17 @@ class Detection(NamedTuple):
 class Resolved(NamedTuple):
     """Result of :meth:`TrainedRun.resolve` for N inputs.
 
-    vertices (N, V, 3) float32: the resolved meshes (decoded ``codes``). codes (N, D) float32: their latent
-    codes. codes_before (N, D): the inputs' codes. pd_input (N,) float64: exact PD of the input meshes (NaN for
-    code inputs). pd_before (N,): exact PD of the decoded input codes. pd_after (N,): exact PD of the result
-    (NaN: the handler or the labeler failed). margin (N,): the detector-logit margin of the kept result.
+    vertices (N, V, 3): the resolved meshes. For mesh inputs (float64, the precision they were labeled in), the
+    input mesh plus the correction the handled code implies (in the input's frame, keeping its detail); for
+    code inputs (float32), the decoded ``codes``.
+    codes (N, D) float32: the handled latent codes. codes_before (N, D): the inputs' codes. pd_input (N,)
+    float64: exact PD of the input meshes (NaN for code inputs). pd_before (N,): exact PD of the decoded input
+    codes (the autoencoder's round trip). pd_after (N,): exact PD of the returned ``vertices`` (NaN: the
+    handler or the labeler failed). margin (N,): the detector-logit margin of the kept result.
+    displacement_mean, displacement_max, displacement_median (N,): how far the returned vertices lie from the
+    input's (code inputs: from the decoded input code), in mesh units; divide by ``diagonal`` (the rest mesh's
+    bounding-box diagonal) for a fraction. decoded (N, V, 3) float32: the handled codes decoded (the latent
+    result, in the decoder's frame).
     """
 
     vertices: torch.Tensor
@@ -63,6 +70,11 @@ class Resolved(NamedTuple):
     pd_before: np.ndarray
     pd_after: np.ndarray
     margin: np.ndarray
+    displacement_mean: np.ndarray
+    displacement_max: np.ndarray
+    displacement_median: np.ndarray
+    diagonal: float
+    decoded: torch.Tensor
 
 
 def _finish_hint(run_dir: Path) -> str:
@@ -177,6 +189,12 @@ class TrainedRun:
     def n_vertices(self) -> int:
         return self.space.acap.n_vertices
 
+    @property
+    def diagonal(self) -> float:
+        """Bounding-box diagonal of the rest mesh (the unit of the fractions the run reports)."""
+        rest = self.space.rest_vertices.cpu().numpy()
+        return float(np.linalg.norm(rest.max(0) - rest.min(0)))
+
     def __repr__(self) -> str:
         return (f"TrainedRun({self.run_dir}, dataset={self.cfg.dataset.name}, V={self.n_vertices}, D={self.dim}, "
                 f"K={self.space.n_parts}, device={self.device})")
@@ -280,7 +298,9 @@ class TrainedRun:
         """Exact PD (B,) of meshes; NaN where the labeler failed (never raises for a mesh)."""
         if len(vertices) == 0:
             return np.zeros(0)
-        report = self._label_pool().label_report(vertices.detach().to("cpu", torch.float64).numpy())
+        v = vertices.detach().to("cpu", torch.float64).numpy() if torch.is_tensor(vertices) else \
+            np.asarray(vertices, np.float64)
+        report = self._label_pool().label_report(v)
         return np.where(report.ok, report.labels.pd, np.nan)
 
     def close(self) -> None:
@@ -297,11 +317,15 @@ class TrainedRun:
 
     # ------------------------------------------------------------------ handling
     def resolve(self, vertices_or_codes, objective: str = "latent", verify: bool = True, margins=None,
-                subset=None) -> Resolved:
-        """Move self-colliding inputs to the nearest codes the detector calls collision-free; measure exactly.
+                subset=None, anchor: str = "median") -> Resolved:
+        """Resolve self-collisions: meshes come back as the user's meshes, corrected; codes as decoded codes.
 
-        The augmented-Lagrangian handler (docs/handler.md) runs with the run's ``handler`` settings; the exact
-        labeler measures PD before and after. With ``verify`` the results it still finds self-penetrating are
+        The augmented-Lagrangian handler (docs/handler.md) moves each input's latent code to the nearest code
+        the detector calls collision-free (the run's ``handler`` settings). For a **mesh**, the correction that
+        move implies (the handled code decoded minus the input's own round trip) is added to the input mesh
+        (:func:`~neuralcol.stages.handling.transfer_displacement`): the result is in the input's frame and
+        keeps its detail, and the exact labeler judges that returned mesh. For a **code**, the result is the
+        handled code decoded. With ``verify`` the results the exact labeler still finds self-penetrating are
         handled again with the larger margins (``margins``, default the run's ``handler.verify_margins``) and
         the lowest-PD result is kept; ``verify=False`` trusts the detector (PD after is still measured).
 
@@ -312,15 +336,26 @@ class TrainedRun:
             verify: exact verification with margin escalation.
             margins: verification margins, each above ``handler.alm.margin`` (None: the run's).
             subset: ``objective="cartesian"``: (S,) vertex indices whose positions count (None: all).
+            anchor: mesh inputs: ``"median"`` (default) removes the translation the decoder's centroid pinning
+                adds to the correction; ``"none"`` keeps the raw difference of the decoded meshes.
 
         Returns:
             :class:`Resolved`.
         """
         from neuralcol.handling.objectives import CartesianObjective, LatentObjective
-        from neuralcol.stages.handling import alm_settings, handle_codes, verified_escalation
+        from neuralcol.stages.handling import (
+            ANCHORS,
+            alm_settings,
+            displacement_stats,
+            handle_codes,
+            resolve_meshes,
+            verified_escalation,
+        )
 
         if objective not in OBJECTIVES:
             raise UserInputError(f"objective={objective!r}; use one of {OBJECTIVES}")
+        if anchor not in ANCHORS:
+            raise UserInputError(f"anchor={anchor!r}; use one of {ANCHORS}")
         x = vertices_or_codes
         v_user = self._vertices(x) if self._is_vertices(x) else None
         z_user = (self.encode(v_user) if v_user is not None else self._codes(x)).float().cpu()
@@ -342,6 +377,18 @@ class TrainedRun:
         if bad:
             raise UserInputError(f"margins {bad} must exceed handler.alm.margin = {settings.margin}")
         batch = int(self.cfg.handler.batch_size)
+        used_margins = np.array([settings.margin, *margins])
+        diag = self.diagonal
+        if v_user is not None:
+            res = resolve_meshes(self.detector, self.space, v_user, self._pd, settings, margins, batch,
+                                 objective=target, anchor=anchor, z_user=z_user)
+            moved = displacement_stats(v_user.numpy(), res.vertices, diag)
+            return Resolved(vertices=torch.as_tensor(res.vertices, dtype=torch.float64, device=self.device),
+                            codes=res.codes.to(self.device), codes_before=z_user.to(self.device),
+                            pd_input=res.pd_input, pd_before=self._pd(self.decode(z_user)), pd_after=res.pd_after,
+                            margin=used_margins[res.stage], displacement_mean=moved["mean"],
+                            displacement_max=moved["max"], displacement_median=moved["median"], diagonal=diag,
+                            decoded=torch.as_tensor(res.decoded, dtype=torch.float32, device=self.device))
 
         def handle(rows: np.ndarray, margin: float):
             idx_map = torch.as_tensor(rows, device=self.device)
@@ -349,7 +396,7 @@ class TrainedRun:
                                 replace(settings, margin=margin), batch_size=batch,
                                 objective=lambda z, idx: target(z, idx_map[idx]))
 
-        def label(z: torch.Tensor) -> np.ndarray:
+        def label(z: torch.Tensor, rows=None) -> np.ndarray:
             return self._pd(self.decode(z))
 
         res = handle(np.arange(len(z_user)), settings.margin)
@@ -358,9 +405,12 @@ class TrainedRun:
         z, stage = res.z.float(), np.zeros(len(z_user), dtype=np.int64)
         if margins:
             z, pd_after, stage, _ = verified_escalation(handle, label, z_user, z, pd_after, margins)
-        used = np.array([settings.margin, *margins])
         with torch.no_grad():  # (a failed result's code may be non-finite: no input check here)
             verts = self.space.decode(z.to(self.device))
+            before = self.space.decode(z_user.to(self.device))
+        moved = displacement_stats(before.cpu().numpy(), verts.cpu().numpy(), diag)
+        nan = np.full(len(z_user), np.nan)
         return Resolved(vertices=verts, codes=z.to(self.device), codes_before=z_user.to(self.device),
-                        pd_input=self._pd(v_user) if v_user is not None else np.full(len(z_user), np.nan),
-                        pd_before=label(z_user), pd_after=pd_after, margin=used[stage])
+                        pd_input=nan, pd_before=label(z_user), pd_after=pd_after, margin=used_margins[stage],
+                        displacement_mean=moved["mean"], displacement_max=moved["max"],
+                        displacement_median=moved["median"], diagonal=diag, decoded=verts)

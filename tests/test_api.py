@@ -28,7 +28,7 @@ def run_dir(tmp_path_factory) -> Path:
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose(config_name="config", overrides=[
             "dataset=proc_hand", "dataset.source.n_poses=24", f"paths.cache_dir={tmp}/cache", "n_example_meshes=0",
-            "autoencoder=tiny", "detector=tiny", "handler.n_inputs=0", "labeling.pool.workers=0",
+            "autoencoder=tiny", "detector=tiny", "realistic=tiny", "handler.n_inputs=0", "labeling.pool.workers=0",
             "labeling.pool.progress=false"])
     run(cfg, tmp / "run")
     (tmp / "run" / ".hydra").mkdir()
@@ -98,10 +98,21 @@ def test_resolve_latent_and_cartesian(trained):
     np.testing.assert_array_equal(res.pd_input, trained.label(verts).pd)
     np.testing.assert_array_equal(res.pd_before, trained.label(trained.decode(res.codes_before)).pd)
     finite = np.isfinite(res.pd_after)
-    np.testing.assert_array_equal(res.pd_after[finite], trained.label(res.vertices[finite]).pd)
-    assert set(res.margin) <= {3.0, 4.0}
-    # detector-guided: the handler lowers the detector's logit (this tiny detector cannot reach -margin)
     keep = torch.as_tensor(finite)
+    np.testing.assert_array_equal(res.pd_after[finite], trained.label(res.vertices[finite].double()).pd)
+    assert set(res.margin) <= {3.0, 4.0}
+    # a mesh comes back as the user's mesh, corrected: input + (D(Z) - D(Z_user)), median shift removed
+    from neuralcol.stages.handling import transfer_displacement
+
+    torch.testing.assert_close(res.decoded, trained.decode(res.codes))
+    expect = transfer_displacement(verts.double(), trained.decode(res.codes_before).double(), res.decoded.double())
+    torch.testing.assert_close(res.vertices[keep], expect[keep])
+    moved = (res.vertices - verts.double()).norm(dim=-1)
+    np.testing.assert_allclose(res.displacement_max, moved.max(1).values.numpy(), rtol=1e-4, atol=1e-6)
+    assert res.diagonal == pytest.approx(float(np.linalg.norm(np.ptp(trained.space.rest_vertices.numpy(), 0))))
+    same = torch.as_tensor(finite) & (res.codes == res.codes_before).all(-1)
+    assert torch.equal(res.vertices[same], verts[same].double())  # a code the handler left alone: the input, unchanged
+    # detector-guided: the handler lowers the detector's logit (this tiny detector cannot reach -margin)
     assert (trained.detect(res.codes[keep]).logit < trained.detect(res.codes_before[keep]).logit).all()
     codes_only = trained.resolve(res.codes_before, verify=False)
     assert np.isnan(codes_only.pd_input).all() and (codes_only.margin == 3.0).all()

@@ -150,7 +150,7 @@ def test_verified_escalation_keeps_the_smallest_margin_that_resolves():
         z0 = z_user[torch.as_tensor(rows)]
         return alm_resolve(LatentObjective(z0), logit, z0, LO, HI, replace(st, margin=margin))
 
-    def label(z):
+    def label(z, rows=None):
         return z[:, 0].numpy().astype(np.float64)
 
     first = handle([0, 1, 2], st.margin)

@@ -84,7 +84,8 @@ def _cfg(tmp_path, *extra):
     with initialize_config_dir(config_dir=CONF, version_base="1.3"):
         return compose(config_name="config", overrides=[
             "dataset=proc_hand", "dataset.source.n_poses=24", f"paths.cache_dir={tmp_path}/cache",
-            "autoencoder=tiny", "detector=tiny", "labeling.pool.workers=0", "labeling.pool.progress=false",
+            "autoencoder=tiny", "detector=tiny",
+            "realistic=tiny", "labeling.pool.workers=0", "labeling.pool.progress=false",
             "handler.n_inputs=4", "handler.verify_margins=[]", "n_example_meshes=0", *extra])
 
 

@@ -52,7 +52,8 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
     from experiments.run import run
 
     cfg = _compose(["dataset=scape", f"paths.data_dir={scape_dir.parent}", f"paths.cache_dir={tmp_path}/cache",
-                    "n_example_meshes=2", "autoencoder=tiny", "detector=tiny", "labeling.pool.workers=0",
+                    "n_example_meshes=2", "autoencoder=tiny", "detector=tiny", "realistic=tiny",
+                    "labeling.pool.workers=0",
                     "labeling.pool.progress=false"])
     metrics = run(cfg, tmp_path / "run")
     saved = json.loads((tmp_path / "run" / "metrics.json").read_text())
@@ -73,10 +74,23 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
         assert key in h and key in h["verified"]
     assert h["n"] > 0 and h["verified"]["resolved_rate"] >= h["resolved_rate"]
     assert (tmp_path / "run" / "handling" / "reduction_vs_difference.png").is_file()
-    # the per-run data of the report's cost and failure charts
     import numpy as np
 
     from neuralcol.metrics.detection import detection_metrics
+
+    # the realistic set (issue 27): every run evaluates on meshes nobody trained on, labeled exactly
+    r = saved["realistic"]
+    assert r["n"] == 14 + 24 + 12 + 12 and r["kinds"] == {"heldout": 14, "acap_interp": 24, "vertex_interp": 12,
+                                                          "perturbed": 12}  # realistic=tiny; 14 held-out meshes
+    assert 0 < r["n_clear"] <= r["n_labeled"] <= r["n"] and 0 <= r["round_trip"]["agreement"] <= 1
+    with np.load(tmp_path / "run" / "realistic_predictions.npz") as f:
+        clear, pd, logit = f["clear"], f["pd"], f["logit"]
+        assert clear.sum() == r["n_clear"] and (np.abs(pd[clear]) >= 10 * 1e-4 * 0.0).all()
+        if r["detection"]["n"]:
+            assert detection_metrics(logit[clear] > 0, pd[clear] > 0)["accuracy"] == r["detection"]["accuracy"]
+        if "handled" in f:
+            assert (pd[f["handled"]] > 0).all() and len(f["handled"]) == r["handling"]["n"] <= 4
+    # the per-run data of the report's cost and failure charts
 
     with np.load(tmp_path / "run" / "test_predictions.npz") as f:
         assert f["prob"].shape == (200,) and f["pd_sub"].shape == (200, 16) and f["collides"].dtype == bool
@@ -108,7 +122,7 @@ def test_scape_autoencoder_cpu_preset(tmp_path, scape_dir):
     from experiments.run import run
 
     cfg = _compose(["dataset=scape_k8l3", f"paths.data_dir={scape_dir.parent}", f"paths.cache_dir={tmp_path}/cache",
-                    "detector=tiny", "autoencoder.progress_bar=false"])
+                    "detector=tiny", "realistic=tiny", "autoencoder.progress_bar=false"])
     m = run(cfg, tmp_path / "run")
     assert m["autoencoder"]["train_mean_vertex_error"] <= 0.01
     assert all(p == 1 for p in m["autoencoder"]["pieces"])
@@ -134,7 +148,7 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     env = {k: v for k, v in __import__("os").environ.items() if k not in ("HYDRA_FULL_ERROR",)}
     proc = subprocess.run(
         [sys.executable, "-m", "experiments.run", "-m", "dataset=scape", "autoencoder=tiny", "detector=tiny",
-         "method=supv_bd,active", "seed=0,1", "hydra/launcher=parallel", "handler.n_inputs=8",
+         "realistic=tiny", "method=supv_bd,active", "seed=0,1", "hydra/launcher=parallel", "handler.n_inputs=8",
          "handler.eval_every_round=true", "handler.verify_margins=[4.0]", "n_example_meshes=0",
          "labeling.pool.workers=0", "labeling.pool.progress=false", f"paths.data_dir={scape_dir.parent}",
          f"paths.cache_dir={tmp_path}/cache",

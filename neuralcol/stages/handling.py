@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -103,7 +104,8 @@ def verified_escalation(handle: Callable[[np.ndarray, float], Resolution],
 
     Args:
         handle: ``(rows, margin) -> Resolution``: handle the inputs ``rows`` (indices into z_user) from Z_user.
-        label: codes (n, D) -> exact PD (n,) (NaN for non-finite codes).
+        label: ``(codes (n, D), rows (n,)) -> exact PD (n,)`` (NaN for non-finite codes); ``rows`` are the
+            inputs (indices into z_user) the codes belong to.
         z_user: (N, D) inputs; z, pd_after: the first handling's codes and exact PD.
         margins: increasing margins, one per extra stage.
 
@@ -123,7 +125,7 @@ def verified_escalation(handle: Callable[[np.ndarray, float], Resolution],
         pd_new = np.full(len(todo), np.nan)
         ok = res.finite.numpy()
         if ok.any():
-            pd_new[ok] = label(res.z[res.finite])
+            pd_new[ok] = label(res.z[res.finite], todo[ok])
         better = np.nan_to_num(pd_new, nan=np.inf) < np.nan_to_num(pd[todo], nan=np.inf)
         rows = todo[better]
         z[torch.as_tensor(rows)] = res.z[torch.as_tensor(better)].to(z)
@@ -156,7 +158,7 @@ def evaluate_handler(net: torch.nn.Module, oracle: LatentOracle, z_user: torch.T
 
     label_failures = [0]
 
-    def label(z: torch.Tensor) -> np.ndarray:  # NaN PD where the exact labeler failed (reported, counted)
+    def label(z: torch.Tensor, rows=None) -> np.ndarray:  # NaN PD where the labeler failed (reported, counted)
         lab = oracle(z, desc="labeling handled codes")
         label_failures[0] += int(getattr(lab, "n_failed", 0))
         return lab.pd
@@ -274,3 +276,137 @@ def export_handling(out_dir: Path, arrays: dict, space, labeler, n_examples: int
             write_mesh(out_dir / f"example_{i}_{name}.obj", verts, faces)
             render_mesh_png(out_dir / f"example_{i}_{name}.png", verts, faces,
                             depth_colors(labeler.vertex_depths(verts)), title=f"{name}: PD = {pd:.3g}")
+
+
+ANCHORS = ("median", "none")
+
+
+def transfer_displacement(v_user: torch.Tensor, decoded_before: torch.Tensor, decoded_after: torch.Tensor,
+                          anchor: str = "median") -> torch.Tensor:
+    """The user's meshes moved by the correction the handler's decoded codes imply (issue 27).
+
+    ``v_user + (D(Z) - D(Z_user))``: the input keeps its own detail and frame, and only what the handler
+    changed moves. The decoder pins the centroid of every decoded mesh to the rest mesh's, so a limb moved
+    by the handler shifts every other vertex by a little; ``anchor="median"`` removes that translation (the
+    coordinate-wise median of the displacement over the vertices, the shift that leaves most of the mesh in
+    place); ``"none"`` keeps the raw difference.
+
+    Args:
+        v_user: (B, V, 3) the input meshes.
+        decoded_before: (B, V, 3) their round trips ``D(Z_user)``.
+        decoded_after: (B, V, 3) the handled codes decoded, ``D(Z)``.
+        anchor: ``"median"`` or ``"none"``.
+
+    Returns:
+        (B, V, 3) in the dtype of ``v_user``.
+    """
+    if anchor not in ANCHORS:
+        raise ValueError(f"anchor={anchor!r}; use one of {ANCHORS}")
+    d = decoded_after.to(v_user) - decoded_before.to(v_user)
+    if anchor == "median":
+        d = d - d.median(dim=1, keepdim=True).values
+    return v_user + d
+
+
+def displacement_stats(v_user: np.ndarray, v_out: np.ndarray, diagonal: float) -> dict[str, np.ndarray]:
+    """Per-mesh vertex displacement from the input, in mesh units and as a fraction of ``diagonal``.
+
+    Returns ``{"median", "mean", "max"}`` each (B,) in mesh units (NaN where the output is non-finite) and the
+    same divided by ``diagonal`` under ``"<key>_frac"``."""
+    d = np.linalg.norm(np.asarray(v_out, np.float64) - np.asarray(v_user, np.float64), axis=-1)  # (B, V)
+    out = {"median": np.median(d, axis=1), "mean": d.mean(1), "max": d.max(1)}
+    out.update({f"{k}_frac": v / float(diagonal) for k, v in list(out.items())})
+    return out
+
+
+class MeshResolution(NamedTuple):
+    """:func:`resolve_meshes` for N input meshes.
+
+    vertices (N, V, 3) float64: the returned meshes (input + transferred correction). decoded (N, V, 3): the
+    handled codes decoded (the latent result). codes, codes_before (N, D) float32. pd_input (N,): exact PD of
+    the inputs. pd_after_detector (N,): exact PD of the returned mesh after the detector-guided handling alone;
+    pd_after (N,): after exact verification (equal to the former without margins). stage (N,) int: which
+    margin's result was kept (0: the first). feasible (N,) bool: the detector calls the first result free.
+    """
+
+    vertices: np.ndarray
+    decoded: np.ndarray
+    codes: torch.Tensor
+    codes_before: torch.Tensor
+    pd_input: np.ndarray
+    pd_after_detector: np.ndarray
+    pd_after: np.ndarray
+    stage: np.ndarray
+    feasible: np.ndarray
+
+
+def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
+                   label: Callable[[np.ndarray], np.ndarray], settings: ALMSettings, margins=(),
+                   batch_size: int = 256, objective=None, anchor: str = "median",
+                   z_user: torch.Tensor | None = None, pd_input: np.ndarray | None = None) -> MeshResolution:
+    """Resolve self-collisions of the user's meshes and return the user's meshes, corrected (issue 27).
+
+    The inputs are encoded; the augmented-Lagrangian handler moves each code to the nearest one the detector
+    calls free; the displacement between the handled code's and the input code's decoded meshes is added to
+    the input (:func:`transfer_displacement`), and the exact labeler judges that returned mesh. With
+    ``margins``, the inputs whose returned mesh still self-penetrates are handled again with each larger margin
+    (:func:`verified_escalation`, on the returned meshes' exact PD).
+
+    Args:
+        net: the detector. space: the latent space.
+        v_user: (N, V, 3) the input meshes.
+        label: meshes (n, V, 3) float64 -> exact PD (n,) (NaN where the labeler failed).
+        settings: ALM settings (``settings.margin`` is the first margin). margins: larger verification margins.
+        batch_size: problems solved together.
+        objective: ``(z, idx) -> (len(idx),)`` over the N problems (default ``|Z - Z_user|^2 / 2``).
+        anchor: see :func:`transfer_displacement`.
+        z_user: (N, D) the inputs' codes if already known (default: encoded here).
+        pd_input: (N,) the inputs' exact PD if already known (default: labeled here).
+    """
+    v_user = torch.as_tensor(v_user).detach().to("cpu", torch.float64)
+    z_user = (space.encode(v_user) if z_user is None else z_user).detach().float().cpu()
+    dev = space.box_lo.device
+
+    def decode(z: torch.Tensor) -> torch.Tensor:
+        with torch.no_grad():
+            parts = [space.decode(c.to(dev).float()).cpu().double() for c in z.split(256)]
+        return torch.cat(parts) if parts else v_user[:0]
+
+    base = decode(z_user)
+
+    def handle(rows: np.ndarray, margin: float) -> Resolution:
+        idx_map = torch.as_tensor(rows, device=dev)
+
+        def target(z: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+            return objective(z, idx_map[idx])
+
+        return handle_codes(net, z_user[torch.as_tensor(rows)], space.box_lo, space.box_hi,
+                            replace(settings, margin=margin), batch_size=batch_size,
+                            objective=None if objective is None else target)
+
+    def returned(z: torch.Tensor, rows: np.ndarray) -> torch.Tensor:
+        r = torch.as_tensor(rows)
+        return transfer_displacement(v_user[r], base[r], decode(z), anchor)
+
+    def label_codes(z: torch.Tensor, rows: np.ndarray) -> np.ndarray:
+        return label(returned(z, rows).numpy())
+
+    n = len(v_user)
+    pd_in = label(v_user.numpy()) if pd_input is None else np.asarray(pd_input, np.float64)
+    res = handle(np.arange(n), settings.margin)
+    finite = res.finite.numpy()
+    pd_after = np.full(n, np.nan)
+    if finite.any():
+        pd_after[finite] = label_codes(res.z[res.finite], np.flatnonzero(finite))
+    z, pd_v, stage = res.z.float(), pd_after.copy(), np.zeros(n, dtype=np.int64)
+    if len(margins):
+        z, pd_v, stage, _ = verified_escalation(handle, label_codes, z_user, z, pd_after, list(margins))
+    ok = torch.isfinite(z).all(-1)
+    decoded = torch.full((n, *v_user.shape[1:]), float("nan"), dtype=torch.float64)
+    out = torch.full_like(decoded, float("nan"))
+    if ok.any():
+        rows = np.flatnonzero(ok.numpy())
+        decoded[ok] = decode(z[ok])
+        out[ok] = returned(z[ok], rows)
+    return MeshResolution(out.numpy(), decoded.numpy(), z, z_user, pd_in, pd_after, pd_v, stage,
+                          res.feasible.numpy())

@@ -1,0 +1,80 @@
+"""Evaluate finished runs on the realistic set: ``python -m experiments.evaluate_realistic RUN_DIR [RUN_DIR ...]``.
+
+The same evaluation every ``experiments.run`` now ends with (``neuralcol/stages/realistic.py``): meshes nobody
+trained on (the autoencoder's held-out meshes, ACAP and vertex interpolations between data set meshes, perturbed
+held-out meshes), labeled exactly; the run's detector on them, the autoencoder's round trip, and
+``resolve`` on the colliding ones. For runs made before the stage existed, or with other realistic settings
+(``--set key=value``, e.g. ``--set handler_inputs=0``). Writes ``realistic.json`` into each run directory
+(``--out NAME`` another name) and prints one line per run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import yaml
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from neuralcol.api import load_run
+from neuralcol.data.features import dataset_features
+from neuralcol.stages.handling import alm_settings
+from neuralcol.stages.realistic import evaluate_realistic, realistic_set
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def realistic_config(cfg, overrides: list[str]):
+    """The run's ``realistic`` settings (or the default group's for older runs) with ``key=value`` overrides."""
+    base = OmegaConf.select(cfg, "realistic")
+    if base is None:
+        base = OmegaConf.create(yaml.safe_load((ROOT / "conf" / "realistic" / "default.yaml").read_text()))
+    return OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides)))
+
+
+def evaluate_run(run_dir: Path, overrides: list[str], workers: int | None) -> dict:
+    with load_run(run_dir, workers=workers, progress=False) as run:
+        cfg = run.cfg
+        rcfg = realistic_config(cfg, overrides)
+        ds = instantiate(cfg.dataset.source)
+        acap_cfg = OmegaConf.to_container(cfg.acap, resolve=True)
+        norm_cfg = acap_cfg.pop("normalizer")
+        feats = dataset_features(ds, cfg.dataset.reference_index, acap_cfg, norm_cfg,
+                                 cache_dir=Path(cfg.paths.cache_dir) / "features")
+        pool = run._label_pool()
+        from neuralcol.stages.detector import samples_cache_dir
+
+        folder = samples_cache_dir(cfg.paths.cache_dir, run.metrics["autoencoder"]["cache_key"], run._labeler)
+        meshes, pd, _ = realistic_set(ds.vertices.numpy(), feats.features.numpy(), feats.acap,
+                                      run.space.meta["val_index"], pool, rcfg, folder)
+        metrics, _ = evaluate_realistic(run.space, run.detector, meshes, pd, pool, float(run._labeler.eps), rcfg,
+                                        alm_settings(cfg.handler.alm), list(cfg.handler.verify_margins),
+                                        int(cfg.handler.batch_size))
+    return metrics
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m experiments.evaluate_realistic",
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument("runs", type=Path, nargs="+", help="finished run directories")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a realistic.* setting (repeatable)")
+    parser.add_argument("--out", default="realistic.json", help="file written into each run directory")
+    parser.add_argument("--workers", type=int, default=None, help="label workers (default: the run's)")
+    args = parser.parse_args(argv)
+    for run_dir in args.runs:
+        m = evaluate_run(run_dir, args.set, args.workers)
+        (run_dir / args.out).write_text(json.dumps(m, indent=2))
+        d, rt, h = m["detection"], m["round_trip"], m.get("handling") or {}
+        print(f"{run_dir}: clear {m['n_clear']}/{m['n']} (collide {m['base_rate_clear']:.3f}); accuracy "
+              f"{d.get('accuracy', float('nan')):.4f} FNR {d.get('fnr', float('nan')):.4f} skill "
+              f"{d.get('skill', float('nan')):.3f}; round trip agreement {rt['agreement']:.3f}, out of box "
+              f"{rt['out_of_box']:.3f}"
+              + (f"; resolve {h['detector_only']['resolved_rate']:.3f} / {h['verified']['resolved_rate']:.3f}, "
+                 f"median displacement {h['displacement_median_frac']:.4f}" if h else ""), flush=True)
+
+
+if __name__ == "__main__":
+    main()

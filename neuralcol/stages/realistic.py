@@ -1,0 +1,182 @@
+"""Stage: the realistic evaluation set (issue 27): meshes a user brings, nobody trained on, labeled exactly.
+
+Built once per latent space and labeler (cached beside the U(Z) test set, ``<cache>/collision/<key>/
+realistic_<hash>.npz``) from the data set's meshes (:mod:`neuralcol.data.realistic`). Every run evaluates its
+final detector on it next to U(Z):
+
+* ``detection``: accuracy, FNR, FPR, skill ``(acc - majority) / (1 - majority)`` on the clear cases
+  (``|PD| >= clear_eps * eps``), overall and per kind; ``detection_all`` on every labeled mesh;
+* ``round_trip``: how often encode -> decode keeps the exact label (``agreement``), how many codes leave the box
+  (``out_of_box``), and how the detector does on the round trip's own label (what the latent detector can see);
+* ``handling``: ``resolve_meshes`` on the colliding clear cases: the returned mesh (the input plus the
+  handler's decoded correction) judged exactly, detector-guided and verified, and how far it moved.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from neuralcol.data.realistic import KINDS, RealisticMeshes, clear_mask, make_realistic_meshes, out_of_box
+from neuralcol.metrics.detection import detection_metrics
+from neuralcol.stages.handling import ALMSettings, displacement_stats, resolve_meshes
+from neuralcol.utils.config import as_dict
+from neuralcol.utils.files import atomic_path
+
+BUILD_KEYS = ("seed", "n_acap_interp", "n_vertex_interp", "n_perturbed", "t_range", "perturb_scale")
+
+
+def pool_pd(pool, vertices: np.ndarray, desc: str | None = None) -> np.ndarray:
+    """Exact PD (n,) of meshes through a label pool; NaN where the labeler failed."""
+    if len(vertices) == 0:
+        return np.zeros(0)
+    if desc is not None:
+        pool.desc = desc
+    report = pool.label_report(np.asarray(vertices, np.float64))
+    return np.where(report.ok, report.labels.pd, np.nan)
+
+
+def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Path) -> tuple[RealisticMeshes,
+                                                                                         np.ndarray, bool]:
+    """The realistic meshes of a data set and their exact PD, built and labeled once, then read from the cache.
+
+    Args:
+        vertices, features, acap: the data set's meshes (N, V, 3), raw ACAP features (N, V, 9), ACAP transform.
+        heldout: the autoencoder's held-out mesh indices.
+        pool: label pool (its labeler's partition gives nothing here: only PD is kept).
+        cfg: the ``realistic`` config (sizes, seed, ranges).
+        folder: cache folder (the latent space's samples folder).
+
+    Returns:
+        (meshes, pd (M,) float64 with NaN where the labeler failed, read from the cache).
+    """
+    c = as_dict(cfg)
+    settings = {k: c[k] for k in BUILD_KEYS}
+    settings["heldout"] = [int(i) for i in np.asarray(heldout).reshape(-1)]
+    key = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
+    path = Path(folder) / f"realistic_{key}.npz"
+    if path.is_file():
+        with np.load(path) as z:
+            return RealisticMeshes(z["vertices"], z["kind"], z["source"], z["t"]), z["pd"], True
+    meshes = make_realistic_meshes(vertices, features, acap, heldout, int(c["n_acap_interp"]),
+                                   int(c["n_vertex_interp"]), int(c["n_perturbed"]), tuple(c["t_range"]),
+                                   float(c["perturb_scale"]), int(c["seed"]))
+    pd = pool_pd(pool, meshes.vertices, desc="labeling the realistic set")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **meshes._asdict(), pd=pd, settings=json.dumps(settings))
+    return meshes, pd, False
+
+
+def _skill(m: dict) -> float:
+    maj = m["majority_accuracy"]
+    return float((m["accuracy"] - maj) / (1.0 - maj)) if maj < 1.0 else float("nan")
+
+
+def _detection(pred: np.ndarray, truth: np.ndarray) -> dict:
+    if len(truth) == 0:
+        return {"n": 0}
+    m = detection_metrics(pred, truth)
+    return {**m, "skill": _skill(m)}
+
+
+def detector_logits(net: torch.nn.Module, z: np.ndarray, batch: int = 4096) -> np.ndarray:
+    """(M,) float64 logits of the latent detector on codes (eval mode, no gradient; the net left as it was)."""
+    was = net.training
+    net.eval()
+    dev = next(net.parameters()).device
+    zt = torch.as_tensor(np.asarray(z, np.float32), device=dev)
+    with torch.no_grad():
+        out = [net(c).logit.cpu() for c in zt.split(batch)]
+    net.train(was)
+    return torch.cat(out).double().numpy() if out else np.zeros(0)
+
+
+def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd: np.ndarray, pool, eps: float,
+                       cfg, settings: ALMSettings, margins=(), batch_size: int = 256) -> tuple[dict, dict]:
+    """The detector, the autoencoder's round trip and the handler on the realistic meshes.
+
+    Args:
+        space: the latent space. net: the final detector.
+        meshes, pd: :func:`realistic_set`'s meshes and exact PD.
+        pool: label pool for the round trips and the handler's results.
+        eps: the labeler's boundary width (``clear_eps`` is in these units).
+        cfg: the ``realistic`` config (``clear_eps``, ``handler_inputs``, ``anchor``).
+        settings, margins, batch_size: the handler's settings, verification margins and batch.
+
+    Returns:
+        (metrics, arrays: per-mesh codes, logits, labels, round-trip PD and the handler's results).
+    """
+    c = as_dict(cfg)
+    t0 = time.perf_counter()
+    v = torch.as_tensor(meshes.vertices, dtype=torch.float64)
+    with torch.no_grad():
+        z = torch.cat([space.encode(b) for b in v.split(256)]).float().cpu() if len(v) else torch.zeros(0, space.dim)
+        rt = torch.cat([space.decode(b.to(space.box_lo.device)).cpu() for b in z.split(256)]).double().numpy()
+    pd_rt = pool_pd(pool, rt, desc="labeling round trips")
+    logit = detector_logits(net, z.numpy())
+    pred = logit > 0
+    clear = clear_mask(pd, eps, float(c["clear_eps"]))
+    labeled = np.isfinite(pd)
+    truth = np.nan_to_num(pd, nan=0.0) > 0
+    truth_rt = np.nan_to_num(pd_rt, nan=0.0) > 0
+    oob = out_of_box(z.numpy(), space.box_lo.cpu().numpy(), space.box_hi.cpu().numpy())
+    both = clear & np.isfinite(pd_rt)
+    rt_clear = both & clear_mask(pd_rt, eps, float(c["clear_eps"]))
+    metrics = {
+        "n": int(len(pd)), "n_labeled": int(labeled.sum()), "n_clear": int(clear.sum()),
+        "clear_eps": float(c["clear_eps"]), "base_rate_clear": float(truth[clear].mean()) if clear.any() else None,
+        "kinds": {k: int((meshes.kind == i).sum()) for i, k in enumerate(KINDS)},
+        "detection": _detection(pred[clear], truth[clear]),
+        "detection_all": _detection(pred[labeled], truth[labeled]),
+        "per_kind": {k: _detection(pred[clear & (meshes.kind == i)], truth[clear & (meshes.kind == i)])
+                     for i, k in enumerate(KINDS)},
+        "round_trip": {
+            "agreement": float((truth_rt[both] == truth[both]).mean()) if both.any() else None,
+            "collides_lost": float((~truth_rt[both & truth]).mean()) if (both & truth).any() else None,
+            "collides_added": float(truth_rt[both & ~truth].mean()) if (both & ~truth).any() else None,
+            "out_of_box": float(oob[clear].mean()) if clear.any() else None,
+            "detector_vs_round_trip": _detection(pred[rt_clear], truth_rt[rt_clear]),
+            "detection_in_box": _detection(pred[clear & ~oob], truth[clear & ~oob]),
+            "detection_out_of_box": _detection(pred[clear & oob], truth[clear & oob]),
+        },
+    }
+    arrays = {"z": z.numpy(), "logit": logit, "pd": pd, "pd_round_trip": pd_rt, "clear": clear,
+              "kind": meshes.kind, "out_of_box": oob}
+    n_h = int(c.get("handler_inputs", 0))
+    pick = np.flatnonzero(clear & truth)[:n_h]
+    if len(pick):
+        diag = float(np.linalg.norm(np.ptp(space.rest_vertices.cpu().numpy(), axis=0)))
+        t_h = time.perf_counter()
+        res = resolve_meshes(net, space, v[torch.as_tensor(pick)],
+                             lambda x: pool_pd(pool, x, desc="labeling resolved meshes"), settings, margins,
+                             batch_size, anchor=str(c.get("anchor", "median")), z_user=z[torch.as_tensor(pick)],
+                             pd_input=pd[pick])
+        moved = displacement_stats(meshes.vertices[pick], res.vertices, diag)
+        ok = np.isfinite(res.pd_after)
+
+        def rates(pd_after: np.ndarray) -> dict:
+            return {"resolved_rate": float(np.mean(np.nan_to_num(pd_after, nan=np.inf) <= 0)),
+                    "success_rate": float(np.mean(np.nan_to_num(pd_after, nan=np.inf) < pd[pick]))}
+
+        metrics["handling"] = {
+            "n": int(len(pick)), "anchor": str(c.get("anchor", "median")),
+            "detector_only": rates(res.pd_after_detector), "verified": rates(res.pd_after),
+            "detector_called_free_before": float(np.mean(logit[pick] <= 0)),
+            "displacement_median_frac": float(np.nanmedian(moved["median_frac"][ok])) if ok.any() else None,
+            "displacement_mean_frac": float(np.nanmedian(moved["mean_frac"][ok])) if ok.any() else None,
+            "displacement_max_frac": float(np.nanmedian(moved["max_frac"][ok])) if ok.any() else None,
+            "displacement_median": float(np.nanmedian(moved["median"][ok])) if ok.any() else None,
+            "diagonal": diag, "seconds": time.perf_counter() - t_h,
+        }
+        arrays.update({"handled": pick, "handled_pd_after_detector": res.pd_after_detector,
+                       "handled_pd_after": res.pd_after, "handled_displacement_median_frac": moved["median_frac"],
+                       "handled_displacement_max_frac": moved["max_frac"]})
+    metrics["seconds"] = time.perf_counter() - t0
+    return metrics, arrays

@@ -1,0 +1,95 @@
+"""The realistic evaluation set (issue 27): construction, clear cases, out-of-box codes, and the handler's
+displacement transfer (the user's mesh comes back, corrected)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from neuralcol.data.realistic import KINDS, clear_mask, make_realistic_meshes, out_of_box
+from neuralcol.geometry.acap import ACAP
+from neuralcol.stages.handling import displacement_stats, transfer_displacement
+from tests.conftest import make_tube, twist
+
+
+@pytest.fixture(scope="module")
+def tube_set():
+    v0, f = make_tube(n_rings=10, n_around=8)
+    poses = np.stack([twist(v0, a) for a in (0.0, 0.4, 0.8, 1.2)])
+    acap = ACAP(poses[0], f)
+    feats = acap.encode(torch.as_tensor(poses))
+    return poses, feats, acap
+
+
+def test_kinds_sources_and_endpoints(tube_set):
+    poses, feats, acap = tube_set
+    m = make_realistic_meshes(poses, feats, acap, heldout=[3], n_acap_interp=6, n_vertex_interp=5, n_perturbed=4,
+                              t_range=(0.0, 1.0), perturb_scale=0.2, seed=1)
+    assert m.vertices.shape == (1 + 6 + 5 + 4, poses.shape[1], 3)
+    np.testing.assert_array_equal(np.bincount(m.kind, minlength=len(KINDS)), [1, 6, 5, 4])
+    np.testing.assert_array_equal(m.vertices[0], poses[3])  # the held-out mesh itself
+    acap_rows = m.kind == KINDS.index("acap_interp")
+    assert (m.source[acap_rows, 0] != m.source[acap_rows, 1]).all()
+    assert (m.source[m.kind == KINDS.index("perturbed"), 0] == 3).all()  # perturbations start from held-out meshes
+    assert (np.abs(m.t[m.kind == KINDS.index("perturbed")]) <= 0.2).all()
+    # a vertex interpolation is exactly the blend of its two source meshes
+    k = np.flatnonzero(m.kind == KINDS.index("vertex_interp"))[0]
+    i, j, t = m.source[k, 0], m.source[k, 1], m.t[k]
+    np.testing.assert_allclose(m.vertices[k], (1 - t) * poses[i] + t * poses[j], atol=1e-12)
+    # an ACAP interpolation of two twists of a tube is the twist in between (ACAP is exact on twists, up to
+    # the decoder's centroid pinning and round-off)
+    k = np.flatnonzero(m.kind == KINDS.index("acap_interp"))[0]
+    i, j, t = m.source[k, 0], m.source[k, 1], m.t[k]
+    angles = np.array([0.0, 0.4, 0.8, 1.2])
+    v0 = poses[0]
+    ref = twist(v0, (1 - t) * angles[i] + t * angles[j])
+    ref = ref - ref.mean(0) + v0.mean(0)
+    assert np.abs(m.vertices[k] - ref).max() < 2e-3
+    again = make_realistic_meshes(poses, feats, acap, [3], 6, 5, 4, (0.0, 1.0), 0.2, seed=1)
+    np.testing.assert_array_equal(again.vertices, m.vertices)  # seeded
+
+
+def test_bad_arguments(tube_set):
+    poses, feats, acap = tube_set
+    with pytest.raises(ValueError, match="t_range"):
+        make_realistic_meshes(poses, feats, acap, [], 1, 1, 1, t_range=(1.0, 0.0))
+    with pytest.raises(ValueError, match="heldout"):
+        make_realistic_meshes(poses, feats, acap, [9], 1, 1, 1)
+    with pytest.raises(ValueError, match=">= 2 meshes"):
+        make_realistic_meshes(poses[:1], feats[:1], acap, [], 1, 1, 1)
+
+
+def test_clear_mask_and_out_of_box():
+    pd = np.array([0.5, 0.05, -0.05, -0.5, np.nan, 0.0])
+    np.testing.assert_array_equal(clear_mask(pd, eps=0.01, clear_eps=10), [True, False, False, True, False, False])
+    z = np.array([[0.0, 0.0], [1.5, 0.0], [0.0, -1.01]])
+    np.testing.assert_array_equal(out_of_box(z, np.array([-1.0, -1.0]), np.array([1.0, 1.0])), [False, True, True])
+
+
+def test_transfer_keeps_the_input_where_the_code_did_not_move():
+    g = torch.Generator().manual_seed(0)
+    v_user = torch.randn(2, 50, 3, generator=g, dtype=torch.float64)
+    base = torch.randn(2, 50, 3, generator=g, dtype=torch.float64)  # the round trip: another mesh entirely
+    np.testing.assert_array_equal(transfer_displacement(v_user, base, base).numpy(), v_user.numpy())
+    # a correction that moves 10 vertices by 1 and, through the decoder's centroid pinning, every vertex by
+    # -0.2: the median anchor removes the shift, so 40 vertices stay exactly where the user put them
+    after = base.clone()
+    after[:, :10, 0] += 1.0
+    after[:, :, 0] -= 0.2
+    out = transfer_displacement(v_user, base, after, anchor="median")
+    np.testing.assert_allclose(out[:, 10:].numpy(), v_user[:, 10:].numpy(), atol=1e-12)
+    np.testing.assert_allclose((out - v_user)[:, :10, 0].numpy(), 1.0, atol=1e-12)
+    raw = transfer_displacement(v_user, base, after, anchor="none")
+    np.testing.assert_allclose((raw - v_user)[:, 10:, 0].numpy(), -0.2, atol=1e-12)
+    with pytest.raises(ValueError, match="anchor"):
+        transfer_displacement(v_user, base, after, anchor="mean")
+
+
+def test_displacement_stats_by_hand():
+    v = np.zeros((1, 4, 3))
+    out = v.copy()
+    out[0, 0] = [3.0, 4.0, 0.0]  # one vertex moved by 5
+    s = displacement_stats(v, out, diagonal=10.0)
+    assert s["median"][0] == 0.0 and s["max"][0] == 5.0 and s["mean"][0] == pytest.approx(1.25)
+    assert s["max_frac"][0] == pytest.approx(0.5)
