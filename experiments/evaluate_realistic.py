@@ -48,7 +48,8 @@ def evaluate_run(run_dir: Path, overrides: list[str], workers: int | None) -> di
 
         folder = samples_cache_dir(cfg.paths.cache_dir, run.metrics["autoencoder"]["cache_key"], run._labeler)
         meshes, pd, _ = realistic_set(ds.vertices.numpy(), feats.features.numpy(), feats.acap,
-                                      run.space.meta["val_index"], pool, rcfg, folder)
+                                      run.space.meta["val_index"], pool, rcfg, folder,
+                                      float(run._labeler.eps))
         metrics, _ = evaluate_realistic(run.space, run.detector, meshes, pd, pool, float(run._labeler.eps), rcfg,
                                         alm_settings(cfg.handler.alm), list(cfg.handler.verify_margins),
                                         int(cfg.handler.batch_size))

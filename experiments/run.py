@@ -124,7 +124,8 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
             t_r = time.perf_counter()
             meshes, pd_real, real_cached = realistic_set(
                 ds.vertices.numpy(), feats.features.numpy(), feats.acap, ae_report["val_index"], pool,
-                cfg.realistic, samples_cache_dir(cfg.paths.cache_dir, ae_report["cache_key"], sample_labeler))
+                cfg.realistic, samples_cache_dir(cfg.paths.cache_dir, ae_report["cache_key"], sample_labeler),
+                float(sample_labeler.eps))
             net, _ = load_detector(run_dir / "detector.pt")
             realistic_metrics, real_arrays = evaluate_realistic(
                 space, net, meshes, pd_real, pool, float(sample_labeler.eps), cfg.realistic, settings,

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from neuralcol.data.realistic import KINDS, clear_mask, make_realistic_meshes, out_of_box
+from neuralcol.data.realistic import KINDS, balanced_selection, clear_mask, make_realistic_meshes, out_of_box
 from neuralcol.geometry.acap import ACAP
 from neuralcol.stages.handling import displacement_stats, transfer_displacement
 from tests.conftest import make_tube, twist
@@ -93,3 +93,16 @@ def test_displacement_stats_by_hand():
     s = displacement_stats(v, out, diagonal=10.0)
     assert s["median"][0] == 0.0 and s["max"][0] == 5.0 and s["mean"][0] == pytest.approx(1.25)
     assert s["max_frac"][0] == pytest.approx(0.5)
+
+
+def test_balanced_selection():
+    kind = np.array([0, 0, 1, 1, 1, 1, 2, 2, 3, 3, 3])
+    pd = np.array([0.5, -0.5, 0.5, 0.5, 0.5, -0.5, 0.05, -0.5, np.nan, -0.5, 0.5])
+    keep = balanced_selection(kind, pd, eps=0.01, clear_eps=10, per_class=None, seed=0)
+    assert {0, 1} <= set(keep)  # held-out meshes always
+    rest = keep[kind[keep] != 0]
+    assert (pd[rest] > 0).sum() == (pd[rest] < 0).sum() == 3  # 4 clear colliding, 3 clear free -> 3 + 3
+    assert 6 not in keep and 8 not in keep  # near the boundary, unlabeled
+    two = balanced_selection(kind, pd, 0.01, 10, per_class=2, seed=0)
+    assert len(two) == 2 + 4
+    np.testing.assert_array_equal(two, balanced_selection(kind, pd, 0.01, 10, per_class=2, seed=0))

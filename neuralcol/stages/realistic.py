@@ -22,13 +22,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from neuralcol.data.realistic import KINDS, RealisticMeshes, clear_mask, make_realistic_meshes, out_of_box
+from neuralcol.data.realistic import (KINDS, RealisticMeshes, balanced_selection, clear_mask, make_realistic_meshes,
+                                      out_of_box)
 from neuralcol.metrics.detection import detection_metrics
 from neuralcol.stages.handling import ALMSettings, displacement_stats, resolve_meshes
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.files import atomic_path
 
-BUILD_KEYS = ("seed", "n_acap_interp", "n_vertex_interp", "n_perturbed", "t_range", "perturb_scale")
+BUILD_KEYS = ("seed", "n_acap_interp", "n_vertex_interp", "n_perturbed", "t_range", "perturb_scale", "clear_eps",
+              "per_class")
 
 
 def pool_pd(pool, vertices: np.ndarray, desc: str | None = None) -> np.ndarray:
@@ -41,9 +43,13 @@ def pool_pd(pool, vertices: np.ndarray, desc: str | None = None) -> np.ndarray:
     return np.where(report.ok, report.labels.pd, np.nan)
 
 
-def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Path) -> tuple[RealisticMeshes,
-                                                                                         np.ndarray, bool]:
+def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Path, eps: float) -> tuple[
+        RealisticMeshes, np.ndarray, bool]:
     """The realistic meshes of a data set and their exact PD, built and labeled once, then read from the cache.
+
+    The candidates (``n_acap_interp`` + ``n_vertex_interp`` + ``n_perturbed`` and the held-out meshes) are
+    labeled, then :func:`~neuralcol.data.realistic.balanced_selection` keeps the held-out meshes and up to
+    ``per_class`` clear colliding and as many clear free ones.
 
     Args:
         vertices, features, acap: the data set's meshes (N, V, 3), raw ACAP features (N, V, 9), ACAP transform.
@@ -51,6 +57,7 @@ def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Pa
         pool: label pool (its labeler's partition gives nothing here: only PD is kept).
         cfg: the ``realistic`` config (sizes, seed, ranges).
         folder: cache folder (the latent space's samples folder).
+        eps: the labeler's boundary width (``clear_eps`` is in its units).
 
     Returns:
         (meshes, pd (M,) float64 with NaN where the labeler failed, read from the cache).
@@ -58,6 +65,7 @@ def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Pa
     c = as_dict(cfg)
     settings = {k: c[k] for k in BUILD_KEYS}
     settings["heldout"] = [int(i) for i in np.asarray(heldout).reshape(-1)]
+    settings["eps"] = float(eps)
     key = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
     path = Path(folder) / f"realistic_{key}.npz"
     if path.is_file():
@@ -66,7 +74,10 @@ def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Pa
     meshes = make_realistic_meshes(vertices, features, acap, heldout, int(c["n_acap_interp"]),
                                    int(c["n_vertex_interp"]), int(c["n_perturbed"]), tuple(c["t_range"]),
                                    float(c["perturb_scale"]), int(c["seed"]))
-    pd = pool_pd(pool, meshes.vertices, desc="labeling the realistic set")
+    pd = pool_pd(pool, meshes.vertices, desc="labeling realistic candidates")
+    keep = balanced_selection(meshes.kind, pd, eps, float(c["clear_eps"]),
+                              None if c["per_class"] is None else int(c["per_class"]), int(c["seed"]))
+    meshes, pd = RealisticMeshes(*(a[keep] for a in meshes)), pd[keep]
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
