@@ -22,8 +22,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from neuralcol.data.realistic import (KINDS, RealisticMeshes, balanced_selection, clear_mask, make_realistic_meshes,
-                                      out_of_box)
+from neuralcol.data.realistic import (
+    KINDS,
+    RealisticMeshes,
+    balanced_selection,
+    clear_mask,
+    make_realistic_meshes,
+    out_of_box,
+)
 from neuralcol.metrics.detection import detection_metrics
 from neuralcol.stages.handling import ALMSettings, displacement_stats, resolve_meshes
 from neuralcol.utils.config import as_dict
