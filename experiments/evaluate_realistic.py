@@ -34,7 +34,16 @@ def realistic_config(cfg, overrides: list[str]):
     return OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides)))
 
 
-def evaluate_run(run_dir: Path, overrides: list[str], workers: int | None) -> dict:
+def mesh_detector_config(cfg, overrides: list[str]):
+    """The run's ``mesh_detector`` settings (or the default group's for older runs) with overrides."""
+    base = OmegaConf.select(cfg, "mesh_detector")
+    if base is None:
+        base = OmegaConf.create(yaml.safe_load((ROOT / "conf" / "mesh_detector" / "default.yaml").read_text()))
+    return OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides)))
+
+
+def evaluate_run(run_dir: Path, overrides: list[str], workers: int | None, train_mesh: bool = False,
+                 mesh_overrides=()) -> dict:
     with load_run(run_dir, workers=workers, progress=False) as run:
         cfg = run.cfg
         rcfg = realistic_config(cfg, overrides)
@@ -50,10 +59,29 @@ def evaluate_run(run_dir: Path, overrides: list[str], workers: int | None) -> di
         meshes, pd, _ = realistic_set(ds.vertices.numpy(), feats.features.numpy(), feats.acap,
                                       run.space.meta["val_index"], pool, rcfg, folder,
                                       float(run._labeler.eps))
+        mesh_net, mesh_report = None, None
+        if train_mesh:  # train the mesh-reading detector on this run's D_c (as experiments.run does)
+            from neuralcol.active.oracle import LatentOracle
+            from neuralcol.stages.detector import shared_test_set
+            from neuralcol.stages.mesh_detector import mesh_detector_stage
+
+            test, _, _ = shared_test_set(LatentOracle(run.space, pool), cfg.detector,
+                                         run.metrics["autoencoder"]["cache_key"], cfg.paths.cache_dir)
+            mesh_net, mesh_report = mesh_detector_stage(
+                run.space, ds.vertices.numpy(), feats.features.numpy(), feats.acap, run.space.meta["train_index"],
+                pool, mesh_detector_config(cfg, list(mesh_overrides)), folder, float(run._labeler.eps),
+                run_dir / "dc.h5", int(cfg.seed), run_dir, test=test)
         metrics, _ = evaluate_realistic(run.space, run.detector, meshes, pd, pool, float(run._labeler.eps), rcfg,
                                         alm_settings(cfg.handler.alm), list(cfg.handler.verify_margins),
-                                        int(cfg.handler.batch_size))
+                                        int(cfg.handler.batch_size), mesh_net=mesh_net)
+        if mesh_report is not None:
+            metrics["mesh_detector"] = mesh_report
     return metrics
+
+
+def run_metrics_line(run_dir: Path) -> str:
+    r = json.loads((run_dir / "metrics.json").read_text())["rounds"][-1]
+    return f"accuracy {r['accuracy']:.4f} FNR {r['fnr']:.4f}"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -64,9 +92,13 @@ def main(argv: list[str] | None = None) -> None:
                         help="override a realistic.* setting (repeatable)")
     parser.add_argument("--out", default="realistic.json", help="file written into each run directory")
     parser.add_argument("--workers", type=int, default=None, help="label workers (default: the run's)")
+    parser.add_argument("--train-mesh-detector", action="store_true",
+                        help="train the mesh-reading detector on the run's D_c first (writes mesh_detector.pt)")
+    parser.add_argument("--mesh-set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a mesh_detector.* setting (repeatable)")
     args = parser.parse_args(argv)
     for run_dir in args.runs:
-        m = evaluate_run(run_dir, args.set, args.workers)
+        m = evaluate_run(run_dir, args.set, args.workers, args.train_mesh_detector, args.mesh_set)
         (run_dir / args.out).write_text(json.dumps(m, indent=2))
         d, rt, h = m["detection"], m["round_trip"], m.get("handling") or {}
         print(f"{run_dir}: clear {m['n_clear']}/{m['n']} (collide {m['base_rate_clear']:.3f}); accuracy "
@@ -75,6 +107,12 @@ def main(argv: list[str] | None = None) -> None:
               f"{rt['out_of_box']:.3f}"
               + (f"; resolve {h['detector_only']['resolved_rate']:.3f} / {h['verified']['resolved_rate']:.3f}, "
                  f"median displacement {h['displacement_median_frac']:.4f}" if h else ""), flush=True)
+        if "detection_mesh" in m:
+            dm, t = m["detection_mesh"], m["mesh_detector"].get("test", {})
+            print(f"  mesh detector: realistic accuracy {dm['accuracy']:.4f} FNR {dm['fnr']:.4f} "
+                  f"skill {dm['skill']:.3f}"
+                  f"; U(Z) accuracy {t.get('accuracy', float('nan')):.4f} FNR {t.get('fnr', float('nan')):.4f} "
+                  f"(latent detector U(Z): {run_metrics_line(run_dir)})", flush=True)
 
 
 if __name__ == "__main__":

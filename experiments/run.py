@@ -35,6 +35,7 @@ from neuralcol.metrics.reconstruction import relative_vertex_error
 from neuralcol.stages.autoencoder import train_or_load_latent_space
 from neuralcol.stages.detector import load_detector, samples_cache_dir, shared_test_set, train_detector
 from neuralcol.stages.handling import alm_settings, evaluate_handler, export_handling
+from neuralcol.stages.mesh_detector import mesh_detector_stage
 from neuralcol.stages.model_size import search_model_size, validate_model_size
 from neuralcol.stages.realistic import evaluate_realistic, realistic_set
 from neuralcol.utils.cli import report_user_errors
@@ -118,18 +119,25 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
             net, _ = load_detector(run_dir / "detector.pt")
             handling_metrics, arrays = evaluate_handler(net, oracle, z_user, pd_user, settings,
                                                         int(cfg.handler.batch_size), list(cfg.handler.verify_margins))
+        # the detector that reads the mesh (issue 27): decoded D_c + realistic training meshes
+        samples_dir = samples_cache_dir(cfg.paths.cache_dir, ae_report["cache_key"], sample_labeler)
+        mesh_net, mesh_report = None, None
+        if cfg.mesh_detector.enabled:
+            mesh_net, mesh_report = mesh_detector_stage(
+                space, ds.vertices.numpy(), feats.features.numpy(), feats.acap, ae_report["train_index"], pool,
+                cfg.mesh_detector, samples_dir, float(sample_labeler.eps), run_dir / "dc.h5", int(cfg.seed),
+                run_dir, test=test, logger=stage_logger(run_dir, "mesh_detector"))
         # the realistic set (issue 27): meshes nobody trained on, labeled exactly, next to U(Z)
         realistic_metrics = None
         if cfg.realistic.enabled:
             t_r = time.perf_counter()
             meshes, pd_real, real_cached = realistic_set(
                 ds.vertices.numpy(), feats.features.numpy(), feats.acap, ae_report["val_index"], pool,
-                cfg.realistic, samples_cache_dir(cfg.paths.cache_dir, ae_report["cache_key"], sample_labeler),
-                float(sample_labeler.eps))
+                cfg.realistic, samples_dir, float(sample_labeler.eps))
             net, _ = load_detector(run_dir / "detector.pt")
             realistic_metrics, real_arrays = evaluate_realistic(
                 space, net, meshes, pd_real, pool, float(sample_labeler.eps), cfg.realistic, settings,
-                list(cfg.handler.verify_margins), int(cfg.handler.batch_size))
+                list(cfg.handler.verify_margins), int(cfg.handler.batch_size), mesh_net=mesh_net)
             realistic_metrics.update({"from_cache": real_cached, "stage_seconds": time.perf_counter() - t_r})
             np.savez_compressed(run_dir / "realistic_predictions.npz", **real_arrays)
             log_realistic(logger, realistic_metrics, det["rounds"][-1]["dataset_size"])
@@ -163,6 +171,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "detector": {**det["detector"], "stage_seconds": t_det},
         "rounds": det["rounds"],
         "handling": handling_metrics,
+        "mesh_detector": mesh_report,
         "realistic": realistic_metrics,
     }
     if size_doc is not None:
@@ -175,6 +184,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
 def log_realistic(logger, m: dict, step: int) -> None:
     """TensorBoard scalars of the realistic set under ``realistic/`` (at the final |D_c|)."""
     scalars = {f"realistic/{k}": m["detection"].get(k) for k in ("accuracy", "fnr", "fpr", "skill")}
+    scalars.update({f"realistic/mesh_{k}": m.get("detection_mesh", {}).get(k) for k in ("accuracy", "fnr", "skill")})
     scalars["realistic/round_trip_agreement"] = m["round_trip"]["agreement"]
     scalars["realistic/out_of_box"] = m["round_trip"]["out_of_box"]
     h = m.get("handling")
@@ -196,6 +206,10 @@ def print_realistic(r: dict | None) -> None:
     if d.get("n"):
         print(f"  detector: accuracy {d['accuracy']:.4f}, FNR {d['fnr']:.4f}, FPR {d['fpr']:.4f}, skill "
               f"{d['skill']:.3f} (majority {d['majority_accuracy']:.4f})")
+    dm = r.get("detection_mesh")
+    if dm and dm.get("n"):
+        print(f"  mesh detector: accuracy {dm['accuracy']:.4f}, FNR {dm['fnr']:.4f}, FPR {dm['fpr']:.4f}, skill "
+              f"{dm['skill']:.3f}")
     agree = "n/a" if rt["agreement"] is None else f"{rt['agreement']:.1%}"
     oob = "n/a" if rt["out_of_box"] is None else f"{rt['out_of_box']:.1%}"
     print(f"  round trip keeps the exact label of {agree}; codes outside the box {oob}")
@@ -238,6 +252,12 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
                   f"  {m['mean_embedding_diff']:>17.1f}  {1e3 * m['seconds_per_mesh']:>11.1f}")
         print(f"  (detector only: {h['n_nonfinite']} non-finite, {h['n_detector_infeasible']} still predicted "
               f"colliding, {h['n_not_converged']} not converged; verified includes the exact labeling)")
+    md = metrics.get("mesh_detector")
+    if md:
+        t = md["test"]
+        print(f"mesh detector ({md['n_pairs']} contact pairs, {md['n_rows']} rows: D_c decoded + "
+              f"{md['n_realistic']} realistic training meshes, {md['seconds']:.0f} s): U(Z) accuracy "
+              f"{t['accuracy']:.4f}, FNR {t['fnr']:.4f}, FPR {t['fpr']:.4f}")
     print_realistic(metrics.get("realistic"))
     print(f"results: {run_dir}   (tensorboard --logdir {run_dir / 'tensorboard'})")
 

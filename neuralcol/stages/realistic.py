@@ -49,8 +49,8 @@ def pool_pd(pool, vertices: np.ndarray, desc: str | None = None) -> np.ndarray:
     return np.where(report.ok, report.labels.pd, np.nan)
 
 
-def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Path, eps: float) -> tuple[
-        RealisticMeshes, np.ndarray, bool]:
+def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Path, eps: float,
+                  tag: str = "realistic", sources=None) -> tuple[RealisticMeshes, np.ndarray, bool]:
     """The realistic meshes of a data set and their exact PD, built and labeled once, then read from the cache.
 
     The candidates (``n_acap_interp`` + ``n_vertex_interp`` + ``n_perturbed`` and the held-out meshes) are
@@ -64,6 +64,8 @@ def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Pa
         cfg: the ``realistic`` config (sizes, seed, ranges).
         folder: cache folder (the latent space's samples folder).
         eps: the labeler's boundary width (``clear_eps`` is in its units).
+        tag: the cache file's prefix. sources: the data set rows ``vertices`` were taken from (recorded in the
+            cache key; None: all).
 
     Returns:
         (meshes, pd (M,) float64 with NaN where the labeler failed, read from the cache).
@@ -72,8 +74,10 @@ def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Pa
     settings = {k: c[k] for k in BUILD_KEYS}
     settings["heldout"] = [int(i) for i in np.asarray(heldout).reshape(-1)]
     settings["eps"] = float(eps)
+    if sources is not None:
+        settings["sources"] = [int(i) for i in np.asarray(sources).reshape(-1)]
     key = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
-    path = Path(folder) / f"realistic_{key}.npz"
+    path = Path(folder) / f"{tag}_{key}.npz"
     if path.is_file():
         with np.load(path) as z:
             return RealisticMeshes(z["vertices"], z["kind"], z["source"], z["t"]), z["pd"], True
@@ -81,7 +85,7 @@ def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Pa
                                    int(c["n_vertex_interp"]), int(c["n_perturbed"]), tuple(c["t_range"]),
                                    float(c["perturb_scale"]), int(c["seed"]))
     pd = pool_pd(pool, meshes.vertices, desc="labeling realistic candidates")
-    keep = balanced_selection(meshes.kind, pd, eps, float(c["clear_eps"]),
+    keep = balanced_selection(meshes.kind, pd, eps, float(c["clear_eps"]),  # clear_eps 0: every labeled mesh
                               None if c["per_class"] is None else int(c["per_class"]), int(c["seed"]))
     meshes, pd = RealisticMeshes(*(a[keep] for a in meshes)), pd[keep]
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -116,7 +120,8 @@ def detector_logits(net: torch.nn.Module, z: np.ndarray, batch: int = 4096) -> n
 
 
 def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd: np.ndarray, pool, eps: float,
-                       cfg, settings: ALMSettings, margins=(), batch_size: int = 256) -> tuple[dict, dict]:
+                       cfg, settings: ALMSettings, margins=(), batch_size: int = 256,
+                       mesh_net: torch.nn.Module | None = None) -> tuple[dict, dict]:
     """The detector, the autoencoder's round trip and the handler on the realistic meshes.
 
     Args:
@@ -126,6 +131,8 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
         eps: the labeler's boundary width (``clear_eps`` is in these units).
         cfg: the ``realistic`` config (``clear_eps``, ``handler_inputs``, ``anchor``).
         settings, margins, batch_size: the handler's settings, verification margins and batch.
+        mesh_net: the detector that reads the mesh (:class:`~neuralcol.nn.mesh_detector.MeshDetector`), judged
+            on the meshes themselves (``detection_mesh``, ``per_kind_mesh``); None: not evaluated.
 
     Returns:
         (metrics, arrays: per-mesh codes, logits, labels, round-trip PD and the handler's results).
@@ -166,6 +173,16 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
     }
     arrays = {"z": z.numpy(), "logit": logit, "pd": pd, "pd_round_trip": pd_rt, "clear": clear,
               "kind": meshes.kind, "out_of_box": oob}
+    if mesh_net is not None:
+        from neuralcol.stages.mesh_detector import mesh_logits
+
+        logit_mesh = mesh_logits(mesh_net, meshes.vertices)
+        pred_mesh = logit_mesh > 0
+        metrics["detection_mesh"] = _detection(pred_mesh[clear], truth[clear])
+        metrics["detection_mesh_all"] = _detection(pred_mesh[labeled], truth[labeled])
+        metrics["per_kind_mesh"] = {k: _detection(pred_mesh[clear & (meshes.kind == i)],
+                                                  truth[clear & (meshes.kind == i)]) for i, k in enumerate(KINDS)}
+        arrays["logit_mesh"] = logit_mesh
     n_h = int(c.get("handler_inputs", 0))
     pick = np.flatnonzero(clear & truth)[:n_h]
     if len(pick):

@@ -1,0 +1,125 @@
+"""Contact-pair features of a mesh: what a detector that reads the mesh sees (issue 27).
+
+A self-collision is two pieces of surface that are far apart on the mesh coming close and passing through each
+other. :func:`select_contact_pairs` picks P vertex pairs that are at least ``min_hops`` edges apart on the rest
+mesh but come within ``radius`` of each other in example meshes (colliding examples weigh more);
+:class:`ContactFeatures` measures, for each pair on any mesh of the topology, three penetration-aware numbers
+(in units of ``radius``, clipped to ``[-clip, clip]``):
+
+* ``dist``: the distance ``|x_j - x_i|``;
+* ``s_min`` and ``s_max``: the smaller and larger of the signed offsets ``(x_j - x_i) . n_i`` and
+  ``(x_i - x_j) . n_j`` along the vertex normals. Two surfaces facing each other have both > 0; once one
+  vertex has passed behind the other surface its offset turns negative, so an unsigned distance's blind spot,
+  touching versus penetrating, is told apart.
+
+The features are differentiable in the vertices (torch), batched, and need only the pair vertices and the
+faces around them.
+
+Symbols: B batch, V vertices, F faces, P pairs.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+import scipy.sparse as sp
+import torch
+from scipy.spatial import cKDTree
+from torch import nn
+
+N_FEATURES_PER_PAIR = 3
+
+
+def hop_neighbourhood(faces: np.ndarray, n_vertices: int, hops: int) -> sp.csr_matrix:
+    """(V, V) boolean CSR: vertices within ``hops`` edges of each other (the diagonal included)."""
+    f = np.asarray(faces, np.int64)
+    a = sp.coo_matrix((np.ones(3 * len(f)), (f.ravel(), np.roll(f, -1, 1).ravel())), shape=(n_vertices,) * 2)
+    a = ((a + a.T + sp.eye(n_vertices)) > 0).astype(np.float32).tocsr()
+    near = a.copy()
+    for _ in range(max(0, int(hops) - 1)):
+        near = ((near @ a) > 0).astype(np.float32).tocsr()
+    return near
+
+
+def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.ndarray, radius: float,
+                         min_hops: int, n_pairs: int, colliding_weight: float = 3.0) -> np.ndarray:
+    """The P vertex pairs that most often come close in ``meshes`` while far apart on the mesh.
+
+    Args:
+        meshes: (N, V, 3) example meshes (e.g. decoded D_c rows and realistic training meshes).
+        collides: (N,) bool, their exact labels; a close pair in a colliding mesh counts ``colliding_weight``.
+        faces: (F, 3) triangles (the hop distance is measured on their edges).
+        radius: pairs closer than this in a mesh are candidates.
+        min_hops: pairs within ``min_hops`` edges of each other are never chosen (their closeness is the
+            surface's own).
+        n_pairs: P, the most pairs returned.
+        colliding_weight: weight of a colliding mesh's close pairs.
+
+    Returns:
+        (P', 2) int64 pairs (i < j), P' <= P, most frequent first (ties by index).
+    """
+    meshes = np.asarray(meshes, np.float64)
+    if meshes.ndim != 3 or meshes.shape[2] != 3:
+        raise ValueError(f"meshes have shape {meshes.shape}, expected (N, V, 3)")
+    near = hop_neighbourhood(faces, meshes.shape[1], min_hops)
+    counts: Counter = Counter()
+    for v, c in zip(meshes, np.asarray(collides, bool)):
+        pr = cKDTree(v).query_pairs(float(radius), output_type="ndarray")
+        if len(pr) == 0:
+            continue
+        pr = pr[np.asarray(near[pr[:, 0], pr[:, 1]]).ravel() == 0]
+        w = float(colliding_weight) if c else 1.0
+        for a, b in pr:
+            counts[(int(min(a, b)), int(max(a, b)))] += w
+    ranked = sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))[: int(n_pairs)]
+    return np.array([p for p, _ in ranked], dtype=np.int64).reshape(-1, 2)
+
+
+def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Area-weighted unit vertex normals, (B, V, 3) -> (B, V, 3), differentiable."""
+    a, b, c = (vertices[:, faces[:, k]] for k in range(3))
+    fn = torch.linalg.cross(b - a, c - a, dim=-1)  # (B, F, 3), length = 2 area
+    n = torch.zeros_like(vertices)
+    for k in range(3):
+        n = n.index_add(1, faces[:, k], fn)
+    return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+class ContactFeatures(nn.Module):
+    """(B, V, 3) meshes -> (B, 3 P) contact-pair features (see the module docstring).
+
+    Args:
+        pairs: (P, 2) vertex pairs. faces: (F, 3) triangles. radius: the length unit of the features.
+        clip: features are clipped to ``[-clip, clip]`` radii.
+    """
+
+    def __init__(self, pairs: np.ndarray, faces: np.ndarray, radius: float, clip: float = 3.0):
+        super().__init__()
+        pairs = torch.as_tensor(np.asarray(pairs), dtype=torch.long).reshape(-1, 2)
+        faces = torch.as_tensor(np.asarray(faces), dtype=torch.long)
+        used = torch.unique(pairs)
+        # only the faces around the pair vertices are needed for their normals
+        keep = torch.isin(faces, used).any(1)
+        self.register_buffer("pairs", pairs)
+        self.register_buffer("faces", faces[keep])
+        self.radius, self.clip = float(radius), float(clip)
+
+    @property
+    def n_pairs(self) -> int:
+        return int(self.pairs.shape[0])
+
+    @property
+    def n_features(self) -> int:
+        return N_FEATURES_PER_PAIR * self.n_pairs
+
+    def forward(self, vertices: torch.Tensor) -> torch.Tensor:
+        v = vertices[None] if vertices.ndim == 2 else vertices
+        n = vertex_normals(v, self.faces)
+        i, j = self.pairs[:, 0], self.pairs[:, 1]
+        d = v[:, j] - v[:, i]  # (B, P, 3)
+        dist = d.norm(dim=-1)
+        si = (d * n[:, i]).sum(-1)
+        sj = (-d * n[:, j]).sum(-1)
+        feats = torch.cat([dist, torch.minimum(si, sj), torch.maximum(si, sj)], -1) / self.radius
+        return feats.clamp(-self.clip, self.clip)
