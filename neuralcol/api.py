@@ -140,8 +140,13 @@ def load_run(run_dir: str | Path, device: str | torch.device = "cpu", workers: i
     net, blob = load_detector(run_dir / "detector.pt")
     pd_unit = float(blob.get("pd_unit") or metrics["detector"]["pd_unit"])
     temperature = float(OmegaConf.select(cfg, "detector.loss.temperature", default=0.1))
+    mesh_net = None
+    if (run_dir / "mesh_detector.pt").is_file():  # the detector that reads the mesh (issue 27)
+        from neuralcol.stages.mesh_detector import load_mesh_detector
+
+        mesh_net = load_mesh_detector(run_dir / "mesh_detector.pt")
     return TrainedRun(run_dir, cfg, metrics, LatentSpace.load(space_path), net, pd_unit, temperature,
-                      device=device, workers=workers, progress=progress)
+                      device=device, workers=workers, progress=progress, mesh_detector=mesh_net)
 
 
 class TrainedRun:
@@ -159,11 +164,12 @@ class TrainedRun:
 
     def __init__(self, run_dir: Path, cfg: DictConfig, metrics: dict, space: LatentSpace,
                  detector: CollisionDetector, pd_unit: float, temperature: float, device="cpu",
-                 workers: int | None = None, progress: bool = False):
+                 workers: int | None = None, progress: bool = False, mesh_detector=None):
         self.run_dir, self.cfg, self.metrics = Path(run_dir), cfg, metrics
         self.device = torch.device(device)
         self.space = space.to(self.device).eval()
         self.detector = detector.to(self.device).eval()
+        self.mesh_detector = None if mesh_detector is None else mesh_detector.to(self.device).eval()
         self.pd_unit, self.temperature = float(pd_unit), float(temperature)
         pool_cfg = OmegaConf.to_container(cfg.labeling.pool, resolve=True)
         pool_cfg["progress"] = bool(progress)
@@ -236,18 +242,32 @@ class TrainedRun:
         with torch.no_grad():
             return self.space.decode(self._codes(codes))
 
-    def detect(self, vertices_or_codes, batch_size: int = 4096, fast: str | None = None) -> Detection:
-        """The detector on meshes (B, V, 3) (encoded first) or codes (B, D), in batches of ``batch_size``.
+    def detect(self, vertices_or_codes, batch_size: int = 4096, fast: str | None = None,
+               inputs: str = "auto") -> Detection:
+        """The detector on meshes (B, V, 3) or codes (B, D), in batches of ``batch_size``.
 
-        ``fast``: None (the eager float32 network, as in training and in the reported metrics), ``"float32"``
-        (compiled with torch.compile: the same outputs to round-off, ~1.4x faster at batch 4096 on 2 CPU cores),
-        ``"bfloat16"`` (compiled, bfloat16 weights: ~2.3x faster where bfloat16 is native; about 0.1 % of labels
-        flip) or ``"bfloat16_checked"`` (bfloat16, with the rows whose logit lies near 0 recomputed in float32:
-        ~1.9x, no label flipped on SCAPE's test sets). The first call with a ``fast`` form compiles it
-        (seconds); :class:`~neuralcol.nn.fast_inference.FastDetector` and docs/model_size.md have the
-        measurements."""
+        ``inputs``: which detector judges. ``"auto"`` (default): a mesh is judged by the detector that reads the
+        mesh (``mesh_detector.pt``, issue 27) when the run has one, a code by the latent detector. ``"mesh"``:
+        the mesh detector (codes are decoded first). ``"latent"``: the paper's detector on the code (meshes are
+        encoded first: it then judges the autoencoder's round trip, not the mesh). ``pd`` and ``pd_sub`` always
+        come from the latent detector (the mesh detector estimates no depth).
+
+        ``fast`` (latent detector only): None (the eager float32 network, as in training and in the reported
+        metrics), ``"float32"`` (compiled with torch.compile: the same outputs to round-off, ~1.4x faster at batch
+        4096 on 2 CPU cores), ``"bfloat16"`` (compiled, bfloat16 weights: ~2.3x faster where bfloat16 is native;
+        about 0.1 % of labels flip) or ``"bfloat16_checked"`` (bfloat16, with the rows whose logit lies near 0
+        recomputed in float32: ~1.9x, no label flipped on SCAPE's test sets). The first call with a ``fast``
+        form compiles it (seconds); :class:`~neuralcol.nn.fast_inference.FastDetector` and docs/model_size.md
+        have the measurements."""
+        if inputs not in ("auto", "mesh", "latent"):
+            raise UserInputError(f"inputs={inputs!r}; use 'auto', 'mesh' or 'latent'")
         x = vertices_or_codes
-        z = self.encode(x) if self._is_vertices(x) else self._codes(x)
+        is_mesh = self._is_vertices(x)
+        if inputs == "mesh" and self.mesh_detector is None:
+            raise UserInputError(f"{self.run_dir}: this run has no mesh_detector.pt (it ran with "
+                                 "mesh_detector.enabled=false or before issue 27); use inputs='latent'")
+        use_mesh = inputs == "mesh" or (inputs == "auto" and is_mesh and self.mesh_detector is not None)
+        z = self.encode(x) if is_mesh else self._codes(x)
         net = self.detector if fast is None else self._fast_detector(fast)
         parts = []
         with torch.no_grad():
@@ -258,7 +278,15 @@ class TrainedRun:
         if not parts:
             empty = z.new_zeros(0)
             return Detection(empty, empty, empty, z.new_zeros(0, self.space.n_parts))
-        return Detection(*(torch.cat(t) for t in zip(*parts)))
+        det = Detection(*(torch.cat(t) for t in zip(*parts)))
+        if use_mesh:
+            from neuralcol.stages.mesh_detector import mesh_logits
+
+            meshes = self._vertices(x).numpy() if is_mesh else self.decode(z).cpu().numpy()
+            logit = torch.as_tensor(mesh_logits(self.mesh_detector, meshes), dtype=torch.float32,
+                                    device=det.logit.device)
+            det = det._replace(prob=torch.sigmoid(logit), logit=logit)
+        return det
 
     def _fast_detector(self, form: str):
         """The compiled copy of the detector for ``form`` (built on first use, then kept)."""

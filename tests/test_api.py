@@ -28,7 +28,8 @@ def run_dir(tmp_path_factory) -> Path:
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose(config_name="config", overrides=[
             "dataset=proc_hand", "dataset.source.n_poses=24", f"paths.cache_dir={tmp}/cache", "n_example_meshes=0",
-            "autoencoder=tiny", "detector=tiny", "realistic=tiny", "handler.n_inputs=0", "labeling.pool.workers=0",
+            "autoencoder=tiny", "detector=tiny", "realistic=tiny",
+            "mesh_detector=tiny", "handler.n_inputs=0", "labeling.pool.workers=0",
             "labeling.pool.progress=false"])
     run(cfg, tmp / "run")
     (tmp / "run" / ".hydra").mkdir()
@@ -60,7 +61,8 @@ def test_detect_encode_decode_label(trained):
     assert det.pd_sub.shape == (6, trained.space.n_parts)
     verts = trained.decode(z)
     assert verts.shape == (6, trained.n_vertices, 3)
-    torch.testing.assert_close(trained.detect(verts).prob, trained.detector(trained.encode(verts)).prob)
+    torch.testing.assert_close(trained.detect(verts, inputs="latent").prob,
+                               trained.detector(trained.encode(verts)).prob)
     one = trained.detect(verts[0].numpy())  # one (V, 3) numpy mesh
     assert one.prob.shape == (1,)
     labels = trained.label(verts)
@@ -68,6 +70,27 @@ def test_detect_encode_decode_label(trained):
                        **{k: v for k, v in OmegaConf.to_container(trained.cfg.labeling.labeler).items()
                           if not k.startswith("_")})
     np.testing.assert_array_equal(labels.pd, [ref.label(v).pd for v in verts.double().numpy()])
+
+
+def test_detect_reads_the_mesh(trained):
+    """inputs='auto' judges a mesh with the detector that reads it, a code with the latent detector; pd always
+    comes from the latent detector."""
+    from neuralcol.stages.mesh_detector import mesh_logits
+
+    assert trained.mesh_detector is not None
+    z = _codes(trained, 5, 2)
+    verts = trained.decode(z)
+    auto = trained.detect(verts)
+    np.testing.assert_allclose(auto.logit.numpy(), mesh_logits(trained.mesh_detector, verts.double().numpy()),
+                               atol=1e-5)
+    latent = trained.detect(verts, inputs="latent")
+    torch.testing.assert_close(latent.logit, trained.detector(trained.encode(verts)).logit)
+    torch.testing.assert_close(auto.pd, latent.pd)
+    torch.testing.assert_close(trained.detect(z).logit, trained.detector(z).logit)  # codes: latent by default
+    decoded = trained.detect(z, inputs="mesh")
+    torch.testing.assert_close(decoded.logit, auto.logit, atol=1e-4, rtol=0)
+    with pytest.raises(UserInputError, match="inputs='pixels'"):
+        trained.detect(z, inputs="pixels")
 
 
 def test_detect_fast_forms(trained):

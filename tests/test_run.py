@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -52,7 +53,7 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
     from experiments.run import run
 
     cfg = _compose(["dataset=scape", f"paths.data_dir={scape_dir.parent}", f"paths.cache_dir={tmp_path}/cache",
-                    "n_example_meshes=2", "autoencoder=tiny", "detector=tiny", "realistic=tiny",
+                    "n_example_meshes=2", "autoencoder=tiny", "detector=tiny", "realistic=tiny", "mesh_detector=tiny",
                     "labeling.pool.workers=0",
                     "labeling.pool.progress=false"])
     metrics = run(cfg, tmp_path / "run")
@@ -91,6 +92,20 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
             assert detection_metrics(logit[clear] > 0, pd[clear] > 0)["accuracy"] == r["detection"]["accuracy"]
         if "handled" in f:
             assert (pd[f["handled"]] > 0).all() and len(f["handled"]) == r["handling"]["n"] <= 4
+    # the detector that reads the mesh: trained on the decoded D_c + realistic training meshes, judged on both sets
+    md = saved["mesh_detector"]
+    assert md["n_dc"] == 240 and md["n_rows"] == 240 + md["n_realistic"] and 0 < md["n_pairs"] <= 64
+    assert md["test"]["n"] == 200 and 0 <= md["test"]["accuracy"] <= 1
+    assert r["detection_mesh"]["n"] == r["detection"]["n"]
+    from neuralcol.stages.mesh_detector import load_mesh_detector
+
+    cached = list((tmp_path / "cache" / "collision").glob("*/realistic_[0-9a-f]*.npz"))
+    assert len(cached) == 1, cached  # the evaluation set, cached beside the U(Z) test set
+    with np.load(cached[0]) as c, np.load(tmp_path / "run" / "realistic_predictions.npz") as f:
+        net = load_mesh_detector(tmp_path / "run" / "mesh_detector.pt")  # weights_only: no pickle
+        with torch.no_grad():
+            logits = net(torch.as_tensor(c["vertices"], dtype=torch.float32)).numpy()
+        np.testing.assert_allclose(f["logit_mesh"], logits, atol=1e-4)
     # the per-run data of the report's cost and failure charts
 
     with np.load(tmp_path / "run" / "test_predictions.npz") as f:
@@ -123,7 +138,7 @@ def test_scape_autoencoder_cpu_preset(tmp_path, scape_dir):
     from experiments.run import run
 
     cfg = _compose(["dataset=scape_k8l3", f"paths.data_dir={scape_dir.parent}", f"paths.cache_dir={tmp_path}/cache",
-                    "detector=tiny", "realistic=tiny", "autoencoder.progress_bar=false"])
+                    "detector=tiny", "realistic=tiny", "mesh_detector=tiny", "autoencoder.progress_bar=false"])
     m = run(cfg, tmp_path / "run")
     assert m["autoencoder"]["train_mean_vertex_error"] <= 0.01
     assert all(p == 1 for p in m["autoencoder"]["pieces"])
@@ -149,7 +164,8 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     env = {k: v for k, v in __import__("os").environ.items() if k not in ("HYDRA_FULL_ERROR",)}
     proc = subprocess.run(
         [sys.executable, "-m", "experiments.run", "-m", "dataset=scape", "autoencoder=tiny", "detector=tiny",
-         "realistic=tiny", "method=supv_bd,active", "seed=0,1", "hydra/launcher=parallel", "handler.n_inputs=8",
+         "realistic=tiny",
+         "mesh_detector=tiny", "method=supv_bd,active", "seed=0,1", "hydra/launcher=parallel", "handler.n_inputs=8",
          "handler.eval_every_round=true", "handler.verify_margins=[4.0]", "n_example_meshes=0",
          "labeling.pool.workers=0", "labeling.pool.progress=false", f"paths.data_dir={scape_dir.parent}",
          f"paths.cache_dir={tmp_path}/cache",

@@ -20,8 +20,6 @@ Symbols: B batch, V vertices, F faces, P pairs.
 
 from __future__ import annotations
 
-from collections import Counter
-
 import numpy as np
 import scipy.sparse as sp
 import torch
@@ -62,18 +60,22 @@ def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.nda
     meshes = np.asarray(meshes, np.float64)
     if meshes.ndim != 3 or meshes.shape[2] != 3:
         raise ValueError(f"meshes have shape {meshes.shape}, expected (N, V, 3)")
-    near = hop_neighbourhood(faces, meshes.shape[1], min_hops)
-    counts: Counter = Counter()
+    n_vert = meshes.shape[1]
+    near = hop_neighbourhood(faces, n_vert, min_hops)
+    keys, weights = [], []
     for v, c in zip(meshes, np.asarray(collides, bool)):
         pr = cKDTree(v).query_pairs(float(radius), output_type="ndarray")
         if len(pr) == 0:
             continue
-        pr = pr[np.asarray(near[pr[:, 0], pr[:, 1]]).ravel() == 0]
-        w = float(colliding_weight) if c else 1.0
-        for a, b in pr:
-            counts[(int(min(a, b)), int(max(a, b)))] += w
-    ranked = sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))[: int(n_pairs)]
-    return np.array([p for p, _ in ranked], dtype=np.int64).reshape(-1, 2)
+        pr = np.sort(pr[np.asarray(near[pr[:, 0], pr[:, 1]]).ravel() == 0], axis=1)
+        keys.append(pr[:, 0] * n_vert + pr[:, 1])
+        weights.append(np.full(len(pr), float(colliding_weight) if c else 1.0))
+    if not keys:
+        return np.zeros((0, 2), np.int64)
+    uniq, inverse = np.unique(np.concatenate(keys), return_inverse=True)
+    score = np.bincount(inverse, weights=np.concatenate(weights))
+    order = np.lexsort((uniq, -score))[: int(n_pairs)]  # by score, ties by pair
+    return np.stack([uniq[order] // n_vert, uniq[order] % n_vert], 1).astype(np.int64)
 
 
 def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:

@@ -93,8 +93,11 @@ def train_mesh_detector(space, dc_z: np.ndarray, dc_collides: np.ndarray, real_v
     stride = max(1, int(pc["select_stride"]))
     dc_z = np.asarray(dc_z, np.float32)
     dc_collides = np.asarray(dc_collides, bool)
-    sel_v = np.concatenate([torch.cat(list(decoded_batches(space, dc_z[::stride]))).numpy()
-                            if len(dc_z) else np.zeros((0, len(rest), 3)), np.asarray(real_vertices)])
+    # decoded once (float32), kept for the features (SCAPE's 38 000 rows: ~1 GB)
+    dc_v = torch.cat(list(decoded_batches(space, dc_z))).numpy() if len(dc_z) else np.zeros((0, len(rest), 3),
+                                                                                             np.float32)
+    t_decode = time.perf_counter() - t0
+    sel_v = np.concatenate([dc_v[::stride], np.asarray(real_vertices, np.float32)])
     sel_y = np.concatenate([dc_collides[::stride], np.asarray(real_collides, bool)])
     pairs = select_contact_pairs(sel_v, sel_y, faces, radius, int(pc["min_hops"]), int(pc["n_pairs"]),
                                  float(pc["colliding_weight"]))
@@ -102,11 +105,12 @@ def train_mesh_detector(space, dc_z: np.ndarray, dc_collides: np.ndarray, real_v
     if len(pairs) == 0:
         raise ValueError(f"no vertex pair at least {pc['min_hops']} edges apart comes within "
                          f"mesh_detector.pairs.radius={pc['radius']} of the diagonal in the examples; raise it")
-    t_pairs = time.perf_counter() - t0
+    t_pairs = time.perf_counter() - t0 - t_decode
     feats = ContactFeatures(pairs, faces, radius, float(pc["clip"]))
-    x = np.concatenate([mesh_features(feats, decoded_batches(space, dc_z)), mesh_features(feats, real_vertices)])
+    x = np.concatenate([mesh_features(feats, dc_v), mesh_features(feats, real_vertices)])
+    del dc_v
     y = np.concatenate([dc_collides, np.asarray(real_collides, bool)])
-    t_feats = time.perf_counter() - t0 - t_pairs
+    t_feats = time.perf_counter() - t0 - t_pairs - t_decode
     rng = np.random.default_rng(seed)
     order = rng.permutation(len(y))
     n_val = int(round(float(tc["val_fraction"]) * len(y)))
@@ -119,9 +123,12 @@ def train_mesh_detector(space, dc_z: np.ndarray, dc_collides: np.ndarray, real_v
     train_dl = DataLoader(TensorDataset(xt[train], yt[train]), batch_size=int(tc["batch_size"]), shuffle=True,
                           generator=g)
     val_dl = DataLoader(TensorDataset(xt[val], yt[val]), batch_size=4096) if n_val else None
-    trainer = L.Trainer(max_epochs=int(tc["epochs"]), logger=logger if logger is not None else False,
+    steps_per_epoch = max(1, -(-len(train) // int(tc["batch_size"])))
+    epochs = max(1, min(int(tc["epochs"]), -(-int(tc["max_steps"]) // steps_per_epoch)))
+    trainer = L.Trainer(max_epochs=epochs, logger=logger if logger is not None else False,
                         enable_checkpointing=False, enable_progress_bar=bool(progress), enable_model_summary=False,
-                        num_sanity_val_steps=0, accelerator="cpu", devices=1, log_every_n_steps=10)
+                        num_sanity_val_steps=0, accelerator="cpu", devices=1,
+                        log_every_n_steps=min(10, steps_per_epoch))
     t1 = time.perf_counter()
     trainer.fit(module, train_dataloaders=train_dl, val_dataloaders=val_dl)
     net = module.net.cpu().eval()
@@ -131,7 +138,8 @@ def train_mesh_detector(space, dc_z: np.ndarray, dc_collides: np.ndarray, real_v
     report = {"n_rows": int(len(y)), "n_dc": int(len(dc_z)), "n_realistic": int(len(real_collides)),
               "n_pairs": int(len(pairs)), "radius": radius,
               "n_parameters": int(sum(p.numel() for p in net.mlp.parameters())),
-              "val": val_metrics, "pairs_seconds": t_pairs, "features_seconds": t_feats, "train_seconds": t_train,
+              "epochs": epochs, "val": val_metrics, "decode_seconds": t_decode,
+              "pairs_seconds": t_pairs, "features_seconds": t_feats, "train_seconds": t_train,
               "seconds": time.perf_counter() - t0}
     return net, report
 
