@@ -106,3 +106,21 @@ def test_balanced_selection():
     two = balanced_selection(kind, pd, 0.01, 10, per_class=2, seed=0)
     assert len(two) == 2 + 4
     np.testing.assert_array_equal(two, balanced_selection(kind, pd, 0.01, 10, per_class=2, seed=0))
+
+
+def test_report_real_meshes_block():
+    from experiments.report import realistic_rows
+
+    def run(method, acc, mesh_acc):
+        return {"detector": {"method": method}, "mesh_detector": {"test": {"accuracy": 0.9}},
+                "realistic": {"n_clear": 300, "detection": {"accuracy": acc, "fnr": 0.5},
+                              "detection_mesh": {"accuracy": mesh_acc, "fnr": 0.2},
+                              "round_trip": {"agreement": 0.7}, "handling": None}}
+
+    rows = realistic_rows([run("supv", 0.6, 0.8), run("active", 0.62, 0.9), run("active", 0.64, 0.88)],
+                          ["supv", "active"])
+    table = [r for r in rows if r.startswith("|")]
+    assert table[0] == "| real meshes: accuracy, latent detector | 60.00% ± 0.00 | 63.00% ± 1.41 |"
+    assert "| real meshes: accuracy, mesh detector | 80.00% ± 0.00 | 89.00% ± 1.41 |" in table
+    assert not any("resolve" in r for r in table)  # no handler results: no row
+    assert realistic_rows([{"detector": {"method": "supv"}}], ["supv"]) == []
