@@ -60,6 +60,10 @@ def evaluate_run(run_dir: Path, overrides: list[str], workers: int | None, train
                                       run.space.meta["val_index"], pool, rcfg, folder,
                                       float(run._labeler.eps))
         mesh_net, mesh_report = None, None
+        if not train_mesh and (run_dir / "mesh_detector.pt").is_file():
+            from neuralcol.stages.mesh_detector import load_mesh_detector
+
+            mesh_net = load_mesh_detector(run_dir / "mesh_detector.pt")
         if train_mesh:  # train the mesh-reading detector on this run's D_c (as experiments.run does)
             from neuralcol.active.oracle import LatentOracle
             from neuralcol.stages.detector import shared_test_set

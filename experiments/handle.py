@@ -98,11 +98,14 @@ def resolve_files(run: TrainedRun, args: argparse.Namespace) -> None:
     out = args.out or args.run_dir / "handled"
     out.mkdir(parents=True, exist_ok=True)
     after = res.vertices.double().cpu().numpy()
-    print(f"{'input':<24} {'PD input':>10} {'PD decoded':>11} {'PD result':>10}  |Z - Z_user|  margin")
+    print(f"{'input':<24} {'PD input':>10} {'PD decoded':>11} {'PD result':>10}  |Z - Z_user|  margin  "
+          "moved (median / max, % of diagonal)")
     for i, name in enumerate(names):
         write_mesh(out / f"{name}_resolved.obj", after[i], run.faces)
         print(f"{name:<24} {res.pd_input[i]:>10.4g} {res.pd_before[i]:>11.4g} {res.pd_after[i]:>10.4g}  "
-              f"{float((res.codes[i] - res.codes_before[i]).norm()):>12.2f}  {res.margin[i]:g}")
+              f"{float((res.codes[i] - res.codes_before[i]).norm()):>12.2f}  {res.margin[i]:g}  "
+              f"{100 * res.displacement_median[i] / res.diagonal:.3f} / "
+              f"{100 * res.displacement_max[i] / res.diagonal:.3f}")
     sys.stdout.flush()
     print(f"wrote {len(names)} meshes to {out} (PD > 0: self-penetrating, in units of the mesh; margin: the "
           "detector-logit margin of the kept result)", file=sys.stderr)

@@ -345,7 +345,7 @@ class TrainedRun:
 
     # ------------------------------------------------------------------ handling
     def resolve(self, vertices_or_codes, objective: str = "latent", verify: bool = True, margins=None,
-                subset=None, anchor: str = "median") -> Resolved:
+                subset=None, anchor: str = "median", constraint: str = "latent") -> Resolved:
         """Resolve self-collisions: meshes come back as the user's meshes, corrected; codes as decoded codes.
 
         The augmented-Lagrangian handler (docs/handler.md) moves each input's latent code to the nearest code
@@ -366,6 +366,9 @@ class TrainedRun:
             subset: ``objective="cartesian"``: (S,) vertex indices whose positions count (None: all).
             anchor: mesh inputs: ``"median"`` (default) removes the translation the decoder's centroid pinning
                 adds to the correction; ``"none"`` keeps the raw difference of the decoded meshes.
+            constraint: mesh inputs: ``"latent"`` (default: the latent detector's logit on the code) or ``"mesh"``
+                (the detector that reads the mesh, on the mesh that would be returned, differentiated through
+                the decoder; slower, docs/real_meshes.md).
 
         Returns:
             :class:`Resolved`.
@@ -384,6 +387,10 @@ class TrainedRun:
             raise UserInputError(f"objective={objective!r}; use one of {OBJECTIVES}")
         if anchor not in ANCHORS:
             raise UserInputError(f"anchor={anchor!r}; use one of {ANCHORS}")
+        if constraint not in ("latent", "mesh"):
+            raise UserInputError(f"constraint={constraint!r}; use 'latent' or 'mesh'")
+        if constraint == "mesh" and self.mesh_detector is None:
+            raise UserInputError(f"{self.run_dir}: constraint='mesh' needs the run's mesh_detector.pt")
         x = vertices_or_codes
         v_user = self._vertices(x) if self._is_vertices(x) else None
         z_user = (self.encode(v_user) if v_user is not None else self._codes(x)).float().cpu()
@@ -409,7 +416,8 @@ class TrainedRun:
         diag = self.diagonal
         if v_user is not None:
             res = resolve_meshes(self.detector, self.space, v_user, self._pd, settings, margins, batch,
-                                 objective=target, anchor=anchor, z_user=z_user)
+                                 objective=target, anchor=anchor, z_user=z_user,
+                                 mesh_net=self.mesh_detector if constraint == "mesh" else None)
             moved = displacement_stats(v_user.numpy(), res.vertices, diag)
             return Resolved(vertices=torch.as_tensor(res.vertices, dtype=torch.float64, device=self.device),
                             codes=res.codes.to(self.device), codes_before=z_user.to(self.device),

@@ -137,6 +137,15 @@ def test_resolve_latent_and_cartesian(trained):
     assert torch.equal(res.vertices[same], verts[same].double())  # a code the handler left alone: the input, unchanged
     # detector-guided: the handler lowers the detector's logit (this tiny detector cannot reach -margin)
     assert (trained.detect(res.codes[keep]).logit < trained.detect(res.codes_before[keep]).logit).all()
+    # the mesh detector as the constraint, on the mesh that would be returned (through the decoder)
+    from neuralcol.stages.mesh_detector import mesh_logits
+
+    by_mesh = trained.resolve(verts[:2], verify=False, constraint="mesh")
+    moved = ~(by_mesh.codes == by_mesh.codes_before).all(-1)
+    before = mesh_logits(trained.mesh_detector, verts[:2].double().numpy())
+    after = mesh_logits(trained.mesh_detector, by_mesh.vertices.numpy())
+    assert (after[moved.numpy()] < before[moved.numpy()]).all()  # it lowers the mesh detector's logit
+    assert (before[~moved.numpy()] <= -2.9).all()  # what it leaves alone, the mesh detector calls free (margin 3)
     codes_only = trained.resolve(res.codes_before, verify=False)
     assert np.isnan(codes_only.pd_input).all() and (codes_only.margin == 3.0).all()
     cart = trained.resolve(verts[:1], objective="cartesian", verify=False, subset=[0, 1, 2])

@@ -194,3 +194,19 @@ def test_pd_reduction_metrics_by_hand():
     assert "pd_sub_before" not in per_input_results({"pd_before": pd_before, "pd_after": pd_after, **arr})
     with pytest.raises(ValueError, match="pd_sub_before"):
         per_input_results({"pd_before": pd_before, "pd_after": pd_after, **arr}, pd_sub[:3])
+
+
+def test_per_problem_constraint_with_rows():
+    """logit_takes_rows: each problem has its own boundary z_0 = t_i (logit 4 (z_0 - t_i)); the handler moves
+    each input to z_0 = t_i - margin / 4 and leaves the other entries alone."""
+    import numpy as np
+
+    t = torch.tensor([0.2, -0.1, 0.5], dtype=torch.float64)
+    z_user = torch.zeros(3, D, dtype=torch.float64)
+    z_user[:, 0] = 0.9
+    st = ALMSettings(margin=0.5, tol=1e-8, feas_tol=1e-9)
+    res = alm_resolve(LatentObjective(z_user), lambda z, idx: 4.0 * (z[:, 0] - t[idx]), z_user, LO.double(),
+                      HI.double(), st, logit_takes_rows=True)
+    np.testing.assert_allclose(res.z[:, 0].numpy(), (t - 0.125).numpy(), atol=1e-5)
+    torch.testing.assert_close(res.z[:, 1:], z_user[:, 1:])
+    assert res.feasible.all()

@@ -75,7 +75,7 @@ class Resolution(NamedTuple):
 def alm_resolve(objective: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
                 logit_fn: Callable[[torch.Tensor], torch.Tensor], z_start: torch.Tensor, box_lo: torch.Tensor,
                 box_hi: torch.Tensor,
-                settings: ALMSettings = ALMSettings()) -> Resolution:
+                settings: ALMSettings = ALMSettings(), logit_takes_rows: bool = False) -> Resolution:
     """Move each code to the nearest (in ``objective``) code the detector calls collision-free.
 
     Args:
@@ -85,10 +85,17 @@ def alm_resolve(objective: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
         z_start: (B, D) starting codes (usually Z_user).
         box_lo, box_hi: (D,) the latent box.
         settings: ALM settings.
+        logit_takes_rows: ``logit_fn`` is called as ``logit_fn(z, idx)`` with the problems' indices (a
+            constraint that differs per problem, e.g. the mesh detector on each user's corrected mesh).
 
     Returns:
         Resolution.
     """
+    if logit_takes_rows:
+        logit_rows = logit_fn
+    else:
+        def logit_rows(z, idx):
+            return logit_fn(z)
     lo_z, hi_z = box_lo.to(z_start), box_hi.to(z_start)
     center, half = (lo_z + hi_z) / 2, ((hi_z - lo_z) / 2).clamp_min(1e-12)
     lo, hi = (lo_z - center) / half, (hi_z - center) / half
@@ -105,7 +112,7 @@ def alm_resolve(objective: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
     converged = torch.zeros_like(active)
     outer = torch.zeros(b, dtype=torch.long, device=z_start.device)
     with torch.no_grad():
-        viol = torch.relu(logit_fn(to_z(x)) + settings.margin)
+        viol = torch.relu(logit_rows(to_z(x), torch.arange(b, device=z_start.device)) + settings.margin)
     for _ in range(settings.max_outer):
         idx = torch.nonzero(active).flatten()
         if len(idx) == 0:
@@ -114,7 +121,7 @@ def alm_resolve(objective: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
 
         def lagrangian(xa, sub, lam_a=lam_a, mu_a=mu_a, idx=idx):
             za = to_z(xa)
-            c = logit_fn(za) + settings.margin
+            c = logit_rows(za, idx[sub]) + settings.margin
             la, ma = lam_a[sub], mu_a[sub]
             return scale * objective(za, idx[sub]) + (torch.relu(la + ma * c) ** 2 - la ** 2) / (2 * ma)
 
@@ -122,7 +129,7 @@ def alm_resolve(objective: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
             new = batched_lbfgs(lagrangian, x[idx], lo, hi, max_iter=settings.inner_iters,
                                 gtol=settings.inner_gtol).x
         with torch.no_grad():
-            c = logit_fn(to_z(new)) + settings.margin
+            c = logit_rows(to_z(new), idx) + settings.margin
             ok = torch.isfinite(new).all(-1) & torch.isfinite(c)
             finite[idx[~ok]] = False
             active[idx[~ok]] = False
@@ -140,7 +147,7 @@ def alm_resolve(objective: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
             active[idx[done]] = False
     with torch.no_grad():
         z = to_z(x)
-        logit = logit_fn(z)
+        logit = logit_rows(z, torch.arange(b, device=z.device))
         obj = objective(z, torch.arange(b, device=z.device))
     feasible = (logit + settings.margin <= settings.feas_tol) & finite
     return Resolution(z, feasible, converged & feasible, finite, outer, logit, obj)

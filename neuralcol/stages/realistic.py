@@ -191,7 +191,8 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
         res = resolve_meshes(net, space, v[torch.as_tensor(pick)],
                              lambda x: pool_pd(pool, x, desc="labeling resolved meshes"), settings, margins,
                              batch_size, anchor=str(c.get("anchor", "median")), z_user=z[torch.as_tensor(pick)],
-                             pd_input=pd[pick])
+                             pd_input=pd[pick],
+                             mesh_net=mesh_net if c.get("handler_constraint", "latent") == "mesh" else None)
         moved = displacement_stats(meshes.vertices[pick], res.vertices, diag)
         ok = np.isfinite(res.pd_after)
 
@@ -201,6 +202,8 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
 
         metrics["handling"] = {
             "n": int(len(pick)), "anchor": str(c.get("anchor", "median")),
+            "constraint": "mesh" if c.get("handler_constraint", "latent") == "mesh" and mesh_net is not None
+            else "latent",
             "detector_only": rates(res.pd_after_detector), "verified": rates(res.pd_after),
             "detector_called_free_before": float(np.mean(logit[pick] <= 0)),
             "displacement_median_frac": float(np.nanmedian(moved["median_frac"][ok])) if ok.any() else None,
