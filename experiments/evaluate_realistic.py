@@ -112,7 +112,7 @@ def main(argv: list[str] | None = None) -> None:
               + (f"; resolve {h['detector_only']['resolved_rate']:.3f} / {h['verified']['resolved_rate']:.3f}, "
                  f"median displacement {h['displacement_median_frac']:.4f}" if h else ""), flush=True)
         if "detection_mesh" in m:
-            dm, t = m["detection_mesh"], m["mesh_detector"].get("test", {})
+            dm, t = m["detection_mesh"], (m.get("mesh_detector") or {}).get("test", {})
             print(f"  mesh detector: realistic accuracy {dm['accuracy']:.4f} FNR {dm['fnr']:.4f} "
                   f"skill {dm['skill']:.3f}"
                   f"; U(Z) accuracy {t.get('accuracy', float('nan')):.4f} FNR {t.get('fnr', float('nan')):.4f} "

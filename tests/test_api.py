@@ -73,20 +73,21 @@ def test_detect_encode_decode_label(trained):
 
 
 def test_detect_reads_the_mesh(trained):
-    """inputs='auto' judges a mesh with the detector that reads it, a code with the latent detector; pd always
-    comes from the latent detector."""
+    """inputs='mesh' (or 'auto' on meshes) judges a mesh with the detector that reads it; the default and codes
+    under 'auto' use the latent detector; pd always comes from the latent detector."""
     from neuralcol.stages.mesh_detector import mesh_logits
 
     assert trained.mesh_detector is not None
     z = _codes(trained, 5, 2)
     verts = trained.decode(z)
-    auto = trained.detect(verts)
+    auto = trained.detect(verts, inputs="auto")
+    torch.testing.assert_close(trained.detect(verts, inputs="mesh").logit, auto.logit)
     np.testing.assert_allclose(auto.logit.numpy(), mesh_logits(trained.mesh_detector, verts.double().numpy()),
                                atol=1e-5)
-    latent = trained.detect(verts, inputs="latent")
+    latent = trained.detect(verts)  # the default: the latent detector (the registered rule, docs/real_meshes.md)
     torch.testing.assert_close(latent.logit, trained.detector(trained.encode(verts)).logit)
     torch.testing.assert_close(auto.pd, latent.pd)
-    torch.testing.assert_close(trained.detect(z).logit, trained.detector(z).logit)  # codes: latent by default
+    torch.testing.assert_close(trained.detect(z, inputs="auto").logit, trained.detector(z).logit)  # codes: latent
     decoded = trained.detect(z, inputs="mesh")
     torch.testing.assert_close(decoded.logit, auto.logit, atol=1e-4, rtol=0)
     with pytest.raises(UserInputError, match="inputs='pixels'"):
