@@ -2,9 +2,8 @@
 
 The paper's detector sees only the latent code, so on a user's mesh it judges the autoencoder's round trip,
 not the mesh. :class:`MeshDetector` judges any mesh of the topology from :class:`ContactFeatures`
-(distances and signed normal offsets of vertex pairs that come close in the data). :class:`DecodedMeshDetector`
-composes it with the latent space's decoder, so codes can be judged (and differentiated) through the mesh
-they decode to.
+(distances and signed normal offsets of vertex pairs that come close in the data). Codes are judged through
+the meshes they decode to (``neuralcol.stages.handling.resolve_meshes`` differentiates it through the decoder).
 
 Symbols: B batch, V vertices, D latent size, P contact pairs.
 """
@@ -40,21 +39,3 @@ class MeshDetector(nn.Module):
     def forward(self, vertices: torch.Tensor) -> torch.Tensor:
         """(B, V, 3) or (V, 3) meshes -> (B,) logits (> 0: collides)."""
         return self.logit_from_features(self.features(vertices.to(self.mlp[0].weight.dtype)))
-
-
-class DecodedMeshDetector(nn.Module):
-    """Codes judged through their decoded meshes: ``logit(Z) = MeshDetector(D(Z))`` (differentiable).
-
-    ``forward`` returns an object with ``.logit`` like :class:`~neuralcol.nn.detector.CollisionDetector`, so
-    the handler can use it as its constraint.
-    """
-
-    def __init__(self, space, detector: MeshDetector):
-        super().__init__()
-        self.space, self.detector = space, detector
-
-    def forward(self, z: torch.Tensor):
-        from types import SimpleNamespace
-
-        logit = self.detector(self.space.decode(z.to(self.space.box_lo.dtype)).to(z.dtype))
-        return SimpleNamespace(logit=logit, prob=torch.sigmoid(logit))
