@@ -20,6 +20,7 @@ from omegaconf import OmegaConf
 
 from neuralcol.api import load_run
 from neuralcol.data.features import dataset_features
+from neuralcol.handling.contact_repair import repair_settings
 from neuralcol.stages.handling import alm_settings
 from neuralcol.stages.realistic import evaluate_realistic, realistic_set
 
@@ -42,8 +43,17 @@ def mesh_detector_config(cfg, overrides: list[str]):
     return OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides)))
 
 
+def repair_config(cfg, overrides: list[str]):
+    """The run's ``handler.repair`` settings (or the default group's for older runs) with overrides, as
+    :class:`~neuralcol.handling.contact_repair.RepairSettings` (None when disabled)."""
+    base = OmegaConf.select(cfg, "handler.repair")
+    if base is None:
+        base = OmegaConf.create(yaml.safe_load((ROOT / "conf" / "handler" / "default.yaml").read_text())["repair"])
+    return repair_settings(OmegaConf.to_container(OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides)))))
+
+
 def evaluate_run(run_dir: Path, overrides: list[str], workers: int | None, train_mesh: bool = False,
-                 mesh_overrides=()) -> dict:
+                 mesh_overrides=(), repair_overrides=()) -> dict:
     with load_run(run_dir, workers=workers, progress=False) as run:
         cfg = run.cfg
         rcfg = realistic_config(cfg, overrides)
@@ -77,7 +87,8 @@ def evaluate_run(run_dir: Path, overrides: list[str], workers: int | None, train
                 run_dir / "dc.h5", int(cfg.seed), run_dir, test=test)
         metrics, _ = evaluate_realistic(run.space, run.detector, meshes, pd, pool, float(run._labeler.eps), rcfg,
                                         alm_settings(cfg.handler.alm), list(cfg.handler.verify_margins),
-                                        int(cfg.handler.batch_size), mesh_net=mesh_net)
+                                        int(cfg.handler.batch_size), mesh_net=mesh_net,
+                                        repair=repair_config(cfg, list(repair_overrides)))
         if mesh_report is not None:
             metrics["mesh_detector"] = mesh_report
     return metrics
@@ -100,9 +111,11 @@ def main(argv: list[str] | None = None) -> None:
                         help="train the mesh-reading detector on the run's D_c first (writes mesh_detector.pt)")
     parser.add_argument("--mesh-set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a mesh_detector.* setting (repeatable)")
+    parser.add_argument("--repair-set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a handler.repair.* setting (repeatable), e.g. enabled=true")
     args = parser.parse_args(argv)
     for run_dir in args.runs:
-        m = evaluate_run(run_dir, args.set, args.workers, args.train_mesh_detector, args.mesh_set)
+        m = evaluate_run(run_dir, args.set, args.workers, args.train_mesh_detector, args.mesh_set, args.repair_set)
         (run_dir / args.out).write_text(json.dumps(m, indent=2))
         d, rt, h = m["detection"], m["round_trip"], m.get("handling") or {}
         print(f"{run_dir}: clear {m['n_clear']}/{m['n']} (collide {m['base_rate_clear']:.3f}); accuracy "
@@ -110,7 +123,10 @@ def main(argv: list[str] | None = None) -> None:
               f"{d.get('skill', float('nan')):.3f}; round trip agreement {rt['agreement']:.3f}, out of box "
               f"{rt['out_of_box']:.3f}"
               + (f"; resolve {h['detector_only']['resolved_rate']:.3f} / {h['verified']['resolved_rate']:.3f}, "
-                 f"median displacement {h['displacement_median_frac']:.4f}" if h else ""), flush=True)
+                 f"median displacement {h['displacement_median_frac']:.4f}" if h else "")
+              + (f" (margins only {h['verified_margins_only']['resolved_rate']:.3f}; contact repair alone "
+                 f"{h['repair_only']['resolved_rate']:.3f}, median displacement "
+                 f"{h['repair_only']['displacement_median_frac']:.4f})" if h.get("repair_only") else ""), flush=True)
         if "detection_mesh" in m:
             dm, t = m["detection_mesh"], (m.get("mesh_detector") or {}).get("test", {})
             print(f"  mesh detector: realistic accuracy {dm['accuracy']:.4f} FNR {dm['fnr']:.4f} "

@@ -283,6 +283,8 @@ REALISTIC_ROWS = (  # (title, path into metrics["realistic"] or metrics, percent
     ("real meshes: resolve, collision-free (verified)", ("realistic", "handling", "verified", "resolved_rate"), True),
     ("real meshes: resolve, median displacement (% diag)",
      ("realistic", "handling", "displacement_median_frac"), True),
+    ("real meshes: contact repair alone, collision-free", ("realistic", "handling", "repair_only", "resolved_rate"),
+     True),
 )
 
 

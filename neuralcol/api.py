@@ -56,7 +56,9 @@ class Resolved(NamedTuple):
     codes (N, D) float32: the handled latent codes. codes_before (N, D): the inputs' codes. pd_input (N,)
     float64: exact PD of the input meshes (NaN for code inputs). pd_before (N,): exact PD of the decoded input
     codes (the autoencoder's round trip). pd_after (N,): exact PD of the returned ``vertices`` (NaN: the
-    handler or the labeler failed). margin (N,): the detector-logit margin of the kept result.
+    handler or the labeler failed). margin (N,): the detector-logit margin of the kept result (NaN where the
+    contact repair's mesh was kept). repaired (N,) bool: the contact repair (``handler.repair``, mesh inputs
+    with ``verify``) produced the returned mesh.
     displacement_mean, displacement_max, displacement_median (N,): how far the returned vertices lie from the
     input's (code inputs: from the decoded input code), in mesh units; divide by ``diagonal`` (the rest mesh's
     bounding-box diagonal) for a fraction. decoded (N, V, 3) float32: the handled codes decoded (the latent
@@ -75,6 +77,7 @@ class Resolved(NamedTuple):
     displacement_median: np.ndarray
     diagonal: float
     decoded: torch.Tensor
+    repaired: np.ndarray | None = None
 
 
 def _finish_hint(run_dir: Path) -> str:
@@ -301,6 +304,19 @@ class TrainedRun:
             self._fast[form] = FastDetector.from_form(self.detector, form)
         return self._fast[form]
 
+    def _repair_settings(self, repair: bool | None):
+        """The run's ``handler.repair`` (off for runs older than it) with ``repair`` forcing it on or off."""
+        from neuralcol.handling.contact_repair import repair_settings
+
+        node = OmegaConf.select(self.cfg, "handler.repair")
+        c = dict(OmegaConf.to_container(node, resolve=True)) if node is not None else {"enabled": False}
+        if repair is not None:
+            c["enabled"] = bool(repair)
+        try:
+            return repair_settings(c)
+        except ValueError as e:
+            raise UserInputError(f"{self.run_dir}/.hydra/config.yaml: {e}") from e
+
     # ------------------------------------------------------------------ exact labels
     def _label_pool(self):
         if self._pool is None:
@@ -348,7 +364,7 @@ class TrainedRun:
 
     # ------------------------------------------------------------------ handling
     def resolve(self, vertices_or_codes, objective: str = "latent", verify: bool = True, margins=None,
-                subset=None, anchor: str = "median", constraint: str = "latent") -> Resolved:
+                subset=None, anchor: str = "median", constraint: str = "latent", repair: bool | None = None) -> Resolved:
         """Resolve self-collisions: meshes come back as the user's meshes, corrected; codes as decoded codes.
 
         The augmented-Lagrangian handler (docs/handler.md) moves each input's latent code to the nearest code
@@ -372,6 +388,9 @@ class TrainedRun:
             constraint: mesh inputs: ``"latent"`` (default: the latent detector's logit on the code) or ``"mesh"``
                 (the detector that reads the mesh, on the mesh that would be returned, differentiated through
                 the decoder; slower, docs/real_meshes.md).
+            repair: mesh inputs with ``verify``: a returned mesh the exact labeler still finds self-penetrating
+                after the margins gets the contact repair (its intersecting triangles pushed apart, our addition;
+                docs/real_meshes.md); None: the run's ``handler.repair.enabled``.
 
         Returns:
             :class:`Resolved`.
@@ -418,16 +437,22 @@ class TrainedRun:
         used_margins = np.array([settings.margin, *margins])
         diag = self.diagonal
         if v_user is not None:
+            rep = self._repair_settings(repair) if verify else None
+            if rep is not None:
+                self._label_pool()  # the repair asks the run's labeler in this process
             res = resolve_meshes(self.detector, self.space, v_user, self._pd, settings, margins, batch,
                                  objective=target, anchor=anchor, z_user=z_user,
-                                 mesh_net=self.mesh_detector if constraint == "mesh" else None)
+                                 mesh_net=self.mesh_detector if constraint == "mesh" else None,
+                                 repair=rep, labeler=self._labeler if rep is not None else None)
+            used_margins = np.append(used_margins, np.nan)
             moved = displacement_stats(v_user.numpy(), res.vertices, diag)
             return Resolved(vertices=torch.as_tensor(res.vertices, dtype=torch.float64, device=self.device),
                             codes=res.codes.to(self.device), codes_before=z_user.to(self.device),
                             pd_input=res.pd_input, pd_before=self._pd(self.decode(z_user)), pd_after=res.pd_after,
                             margin=used_margins[res.stage], displacement_mean=moved["mean"],
                             displacement_max=moved["max"], displacement_median=moved["median"], diagonal=diag,
-                            decoded=torch.as_tensor(res.decoded, dtype=torch.float32, device=self.device))
+                            decoded=torch.as_tensor(res.decoded, dtype=torch.float32, device=self.device),
+                            repaired=res.repaired)
 
         def handle(rows: np.ndarray, margin: float):
             idx_map = torch.as_tensor(rows, device=self.device)

@@ -159,6 +159,43 @@ def test_resolve_latent_and_cartesian(trained):
         trained.detect(torch.zeros(2, 5))
 
 
+class CallsEverythingFree(torch.nn.Module):
+    """A detector that calls every code free: the handler leaves each input alone, so a colliding input comes
+    back colliding and only the contact repair can free it."""
+
+    def __init__(self):
+        super().__init__()
+        self.bias = torch.nn.Parameter(torch.tensor(-10.0))
+
+    def forward(self, z):
+        from types import SimpleNamespace
+
+        return SimpleNamespace(logit=self.bias.expand(len(z)) + 0 * z.sum(-1))
+
+
+def test_resolve_with_contact_repair(trained, monkeypatch):
+    """repair=True: returned meshes the exact labeler still finds penetrating after verification get the contact
+    repair; those it frees come back free by the exact label (margin NaN, repaired True), the rest as without."""
+    z = _codes(trained, 200, 7)
+    verts = trained.decode(z)
+    hit = np.flatnonzero(trained.label(verts).collides)[:3]
+    assert len(hit) >= 2  # deterministic: the tiny run's box holds colliding codes
+    verts = verts[torch.as_tensor(hit)].double()
+    monkeypatch.setattr(trained, "detector", CallsEverythingFree())
+    plain = trained.resolve(verts, margins=[4.0], repair=False)
+    assert (plain.pd_after > 0).all()  # (nearly) left alone: still colliding
+    assert plain.repaired is not None and not plain.repaired.any()
+    fixed = trained.resolve(verts, margins=[4.0], repair=True)
+    assert fixed.repaired.all() and (fixed.pd_after <= 0).all()
+    np.testing.assert_array_equal(fixed.pd_after, trained.label(fixed.vertices).pd)
+    assert np.isnan(fixed.margin).all()
+    moved = (fixed.vertices - verts).norm(dim=-1)
+    near = (plain.vertices - verts).norm(dim=-1)
+    assert (np.median((moved - near).abs().numpy(), axis=1) < 1e-3 * fixed.diagonal).all()  # the rest kept
+    np.testing.assert_allclose(fixed.displacement_max, moved.max(1).values.numpy())
+    assert not trained.resolve(verts[:1], verify=False, repair=True).repaired.any()  # needs verify
+
+
 def test_load_run_errors_name_what_is_missing(run_dir, tmp_path):
     import neuralcol
 

@@ -35,6 +35,7 @@ def test_shipped_configs_are_valid(preset):
     ("handler.n_inputs=-1", "handler.n_inputs=-1: must be an integer >= 0"),
     ("handler.verify_margins=[2.0,1.0]", "handler.verify_margins=[2.0, 1.0]: must increase"),
     ("handler.alm.mu0=0", "handler.alm: handler settings"),
+    ("handler.repair.delta=0", "handler.repair: handler.repair RepairSettings"),
     ("labeling.pool.timeout=0", "labeling.pool.timeout=0: must be > 0 seconds"),
     ("labeling.pool.max_restarts=-1", "labeling.pool.max_restarts=-1: must be an integer >= 0"),
     ("labeling.pool.executor=spark", "labeling.pool.executor='spark': use one of local (this machine's worker "

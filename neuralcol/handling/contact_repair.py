@@ -26,6 +26,7 @@ Symbols: V vertices, F faces, P intersecting triangle pairs.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -144,3 +145,57 @@ def repair_contacts(vertices: np.ndarray, faces: np.ndarray, labeler, delta: flo
             dx *= (peak if max_step is None else min(peak, max_step)) / spread
         v += dx
     return Repair(v, False, max_iter, seen)
+
+
+@dataclass(frozen=True)
+class RepairSettings:
+    """Settings of the contact repair (``handler.repair`` in ``conf/handler/default.yaml``)."""
+
+    enabled: bool = True
+    delta: float = 3.0          # separation asked for per intersecting pair, in the labeler's eps
+    smooth_steps: int = 16      # diffusion steps the push is spread by
+    max_smooth: int | None = None  # grow the diffusion up to this when stalled (None: fixed)
+    max_iter: int = 60
+    max_step: float = 0.002     # no vertex moves more than this fraction of the diagonal per iteration
+
+    def __post_init__(self):
+        if self.delta <= 0 or self.smooth_steps < 0 or self.max_iter < 0 or self.max_step <= 0:
+            raise ValueError(f"handler.repair {self}: need delta > 0, smooth_steps >= 0, max_iter >= 0, "
+                             "max_step > 0")
+
+
+def repair_settings(cfg) -> RepairSettings | None:
+    """:class:`RepairSettings` from a ``handler.repair`` mapping (None or ``enabled: false``: no repair)."""
+    if cfg is None:
+        return None
+    c = dict(cfg)
+    unknown = set(c) - set(RepairSettings.__dataclass_fields__)
+    if unknown:
+        raise ValueError(f"handler.repair: unknown keys {sorted(unknown)}; known: "
+                         f"{sorted(RepairSettings.__dataclass_fields__)}")
+    s = RepairSettings(**c)
+    return s if s.enabled else None
+
+
+def repair_meshes(vertices: np.ndarray, faces: np.ndarray, labeler, settings: RepairSettings, eps: float,
+                  diagonal: float, sign: float, progress: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`repair_contacts` of every mesh (N, V, 3), in this process.
+
+    Args:
+        eps: the labeler's boundary width (``settings.delta`` is in its units).
+        diagonal: the rest mesh's bounding-box diagonal (``settings.max_step`` is a fraction of it).
+        sign: :func:`outward_sign` of the rest mesh.
+
+    Returns:
+        (vertices (N, V, 3) float64, resolved (N,) bool, iterations (N,) int).
+    """
+    from tqdm.auto import tqdm
+
+    v = np.asarray(vertices, np.float64)
+    out, ok, its = np.empty_like(v), np.zeros(len(v), bool), np.zeros(len(v), np.int64)
+    w = diffusion_operator(faces, v.shape[1]) if len(v) else None
+    for k in tqdm(range(len(v)), desc="contact repair", disable=not progress or len(v) == 0):
+        r = repair_contacts(v[k], faces, labeler, settings.delta * eps, settings.smooth_steps, settings.max_iter,
+                            sign, w, max_step=settings.max_step * diagonal, max_smooth=settings.max_smooth)
+        out[k], ok[k], its[k] = r.vertices, r.resolved, r.iterations
+    return out, ok, its

@@ -333,8 +333,10 @@ class MeshResolution(NamedTuple):
     vertices (N, V, 3) float64: the returned meshes (input + transferred correction). decoded (N, V, 3): the
     handled codes decoded (the latent result). codes, codes_before (N, D) float32. pd_input (N,): exact PD of
     the inputs. pd_after_detector (N,): exact PD of the returned mesh after the detector-guided handling alone;
-    pd_after (N,): after exact verification (equal to the former without margins). stage (N,) int: which
-    margin's result was kept (0: the first). feasible (N,) bool: the detector calls the first result free.
+    pd_after (N,): after exact verification and the contact repair (equal to the former without either).
+    stage (N,) int: which margin's result was kept (0: the first; ``len(margins) + 1``: the contact repair's).
+    feasible (N,) bool: the detector calls the first result free. pd_after_escalation (N,): after the margins,
+    before the repair. repaired (N,) bool: the contact repair's mesh was kept.
     """
 
     vertices: np.ndarray
@@ -346,13 +348,16 @@ class MeshResolution(NamedTuple):
     pd_after: np.ndarray
     stage: np.ndarray
     feasible: np.ndarray
+    pd_after_escalation: np.ndarray
+    repaired: np.ndarray
 
 
 def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
                    label: Callable[[np.ndarray], np.ndarray], settings: ALMSettings, margins=(),
                    batch_size: int = 256, objective=None, anchor: str = "median",
                    z_user: torch.Tensor | None = None, pd_input: np.ndarray | None = None,
-                   mesh_net: torch.nn.Module | None = None) -> MeshResolution:
+                   mesh_net: torch.nn.Module | None = None, repair=None, labeler=None,
+                   progress: bool = False) -> MeshResolution:
     """Resolve self-collisions of the user's meshes and return the user's meshes, corrected (issue 27).
 
     The inputs are encoded; the augmented-Lagrangian handler moves each code to the nearest one the detector
@@ -374,7 +379,13 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
         mesh_net: the detector that reads the mesh: if given, the handler's constraint is its logit on each
             input's *returned* mesh ``v_user + D(Z) - D(Z_user)`` (differentiable through the decoder; slower),
             instead of the latent detector's logit on Z.
+        repair: :class:`~neuralcol.handling.contact_repair.RepairSettings` or None: the returned meshes the exact
+            labeler still finds self-penetrating after the margins get the contact repair (our addition), which
+            is kept where it lowers the exact PD; needs ``labeler`` (its ``intersecting_pairs``, ``eps``).
+        progress: a progress bar over the repaired meshes.
     """
+    if repair is not None and labeler is None:
+        raise ValueError("resolve_meshes: repair needs the exact labeler (labeler=...)")
     v_user = torch.as_tensor(v_user).detach().to("cpu", torch.float64)
     z_user = (space.encode(v_user) if z_user is None else z_user).detach().float().cpu()
     dev = space.box_lo.device
@@ -430,5 +441,20 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
         rows = np.flatnonzero(ok.numpy())
         decoded[ok] = decode(z[ok])
         out[ok] = returned(z[ok], rows)
-    return MeshResolution(out.numpy(), decoded.numpy(), z, z_user, pd_in, pd_after, pd_v, stage,
-                          res.feasible.numpy())
+    out = out.numpy()
+    pd_esc, repaired = pd_v.copy(), np.zeros(n, dtype=bool)
+    todo = np.flatnonzero(ok.numpy() & ~(pd_v <= 0))
+    if repair is not None and len(todo):
+        from neuralcol.handling.contact_repair import outward_sign, repair_meshes
+
+        rest = space.rest_vertices.detach().cpu().numpy()
+        faces = space.faces.detach().cpu().numpy()
+        diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
+        fixed, _, _ = repair_meshes(out[todo], faces, labeler, repair, float(labeler.eps), diag,
+                                    outward_sign(faces, rest), progress=progress)
+        pd_fix = label(fixed)
+        better = np.nan_to_num(pd_fix, nan=np.inf) < np.nan_to_num(pd_v[todo], nan=np.inf)
+        rows = todo[better]
+        out[rows], pd_v[rows], stage[rows], repaired[rows] = fixed[better], pd_fix[better], len(margins) + 1, True
+    return MeshResolution(out, decoded.numpy(), z, z_user, pd_in, pd_after, pd_v, stage,
+                          res.feasible.numpy(), pd_esc, repaired)

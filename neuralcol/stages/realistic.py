@@ -121,7 +121,7 @@ def detector_logits(net: torch.nn.Module, z: np.ndarray, batch: int = 4096) -> n
 
 def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd: np.ndarray, pool, eps: float,
                        cfg, settings: ALMSettings, margins=(), batch_size: int = 256,
-                       mesh_net: torch.nn.Module | None = None) -> tuple[dict, dict]:
+                       mesh_net: torch.nn.Module | None = None, repair=None) -> tuple[dict, dict]:
     """The detector, the autoencoder's round trip and the handler on the realistic meshes.
 
     Args:
@@ -133,6 +133,10 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
         settings, margins, batch_size: the handler's settings, verification margins and batch.
         mesh_net: the detector that reads the mesh (:class:`~neuralcol.nn.mesh_detector.MeshDetector`), judged
             on the meshes themselves (``detection_mesh``, ``per_kind_mesh``); None: not evaluated.
+        repair: :class:`~neuralcol.handling.contact_repair.RepairSettings` or None: the contact repair as the
+            handler's last verified stage (the pool's labeler runs it, in this process); with
+            ``repair_reference`` in ``cfg`` the repair alone on the inputs is measured beside it
+            (``handling.repair_only``).
 
     Returns:
         (metrics, arrays: per-mesh codes, logits, labels, round-trip PD and the handler's results).
@@ -192,28 +196,48 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
                              lambda x: pool_pd(pool, x, desc="labeling resolved meshes"), settings, margins,
                              batch_size, anchor=str(c.get("anchor", "median")), z_user=z[torch.as_tensor(pick)],
                              pd_input=pd[pick],
-                             mesh_net=mesh_net if c.get("handler_constraint", "latent") == "mesh" else None)
+                             mesh_net=mesh_net if c.get("handler_constraint", "latent") == "mesh" else None,
+                             repair=repair, labeler=pool.labeler if repair is not None else None)
         moved = displacement_stats(meshes.vertices[pick], res.vertices, diag)
         ok = np.isfinite(res.pd_after)
+        t_handle = time.perf_counter() - t_h
 
         def rates(pd_after: np.ndarray) -> dict:
             return {"resolved_rate": float(np.mean(np.nan_to_num(pd_after, nan=np.inf) <= 0)),
                     "success_rate": float(np.mean(np.nan_to_num(pd_after, nan=np.inf) < pd[pick]))}
+
+        def moved_summary(m: dict, ok: np.ndarray) -> dict:
+            return {"displacement_median_frac": float(np.nanmedian(m["median_frac"][ok])) if ok.any() else None,
+                    "displacement_mean_frac": float(np.nanmedian(m["mean_frac"][ok])) if ok.any() else None,
+                    "displacement_max_frac": float(np.nanmedian(m["max_frac"][ok])) if ok.any() else None}
 
         metrics["handling"] = {
             "n": int(len(pick)), "anchor": str(c.get("anchor", "median")),
             "constraint": "mesh" if c.get("handler_constraint", "latent") == "mesh" and mesh_net is not None
             else "latent",
             "detector_only": rates(res.pd_after_detector), "verified": rates(res.pd_after),
+            "verified_margins_only": rates(res.pd_after_escalation),
+            "repair": None if repair is None else {**repair.__dict__, "n_repaired": int(res.repaired.sum())},
             "detector_called_free_before": float(np.mean(logit[pick] <= 0)),
-            "displacement_median_frac": float(np.nanmedian(moved["median_frac"][ok])) if ok.any() else None,
-            "displacement_mean_frac": float(np.nanmedian(moved["mean_frac"][ok])) if ok.any() else None,
-            "displacement_max_frac": float(np.nanmedian(moved["max_frac"][ok])) if ok.any() else None,
+            **moved_summary(moved, ok),
             "displacement_median": float(np.nanmedian(moved["median"][ok])) if ok.any() else None,
-            "diagonal": diag, "seconds": time.perf_counter() - t_h,
+            "diagonal": diag, "seconds": t_handle,
         }
         arrays.update({"handled": pick, "handled_pd_after_detector": res.pd_after_detector,
                        "handled_pd_after": res.pd_after, "handled_displacement_median_frac": moved["median_frac"],
-                       "handled_displacement_max_frac": moved["max_frac"]})
+                       "handled_displacement_max_frac": moved["max_frac"], "handled_repaired": res.repaired})
+        if repair is not None and c.get("repair_reference", False):
+            from neuralcol.handling.contact_repair import outward_sign, repair_meshes
+
+            t_r = time.perf_counter()
+            rest = space.rest_vertices.cpu().numpy()
+            faces = space.faces.cpu().numpy()
+            fixed, _, _ = repair_meshes(meshes.vertices[pick], faces, pool.labeler, repair, float(eps), diag,
+                                        outward_sign(faces, rest))
+            pd_fix = pool_pd(pool, fixed, desc="labeling repaired inputs")
+            m_fix = displacement_stats(meshes.vertices[pick], fixed, diag)
+            metrics["handling"]["repair_only"] = {**rates(pd_fix), **moved_summary(m_fix, np.isfinite(pd_fix)),
+                                                  "seconds": time.perf_counter() - t_r}
+            arrays["handled_pd_after_repair_only"] = pd_fix
     metrics["seconds"] = time.perf_counter() - t0
     return metrics, arrays

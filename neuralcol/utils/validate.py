@@ -101,6 +101,13 @@ def config_problems(cfg: DictConfig) -> list[str]:
             ALMSettings(**OmegaConf.to_container(cfg.handler.alm, resolve=True))
         except (TypeError, ValueError) as e:
             problems.append(f"handler.alm: {e}")
+    if _get(cfg, "handler.repair") is not None:
+        from neuralcol.handling.contact_repair import repair_settings
+
+        try:
+            repair_settings(OmegaConf.to_container(cfg.handler.repair, resolve=True))
+        except (TypeError, ValueError) as e:
+            problems.append(f"handler.repair: {e}")
     return problems
 
 

@@ -1,0 +1,132 @@
+"""Contact repair (issue 27): the push on analytic triangle pairs, two spheres pushed into each other repaired by
+the exact labeler's contacts with the far side left in place, the iteration cap and the step cap."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from neuralcol.collision.labeler import ExactLabeler
+from neuralcol.handling.contact_repair import (
+    RepairSettings,
+    contact_push,
+    diffusion_operator,
+    outward_sign,
+    repair_contacts,
+    repair_meshes,
+    repair_settings,
+)
+
+
+def two_spheres(overlap: float, subdivisions: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two unit spheres along x whose centres are 2 - overlap apart (overlap > 0: they intersect); also the
+    rest pose (1 apart from touching)."""
+    s = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+    v, f = np.asarray(s.vertices, np.float64), np.asarray(s.faces, np.int64)
+    faces = np.concatenate([f, f + len(v)])
+
+    def place(gap):
+        return np.concatenate([v, v + np.array([2.0 + gap, 0.0, 0.0])])
+
+    return place(-overlap), faces, place(1.0)
+
+
+def test_outward_sign_closed_flipped_and_open():
+    s = trimesh.creation.icosphere(subdivisions=1)
+    v, f = np.asarray(s.vertices), np.asarray(s.faces)
+    assert outward_sign(f, v) == 1.0
+    assert outward_sign(f[:, ::-1], v) == -1.0
+    assert outward_sign(f[1:], v) == 0.0
+
+
+def test_push_of_a_triangle_through_another_plane():
+    """Triangle a has one vertex 0.1 below triangle b's plane (z = 0, normal +z on a closed mesh's outside) and
+    two 0.2 above it: only the low vertex is pushed, by half of delta - s along +z; b's vertices are pushed
+    along a's normal by half of their own shortfall."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0],               # b: z = 0, normal +z
+                  [0.2, 0.2, -0.1], [0.3, 0.2, 0.2], [0.2, 0.3, 0.2]], float)  # a
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    delta = 0.05
+    push = contact_push(v, f, np.array([[1, 0]]), delta, sign=1.0)
+    np.testing.assert_allclose(push[3], [0, 0, 0.5 * (delta + 0.1)], atol=1e-12)
+    np.testing.assert_allclose(push[4:6], 0.0, atol=1e-12)
+    # b against a's plane: the outward normal of a, times half of each of b's vertices' shortfall
+    ta = v[3:]
+    n = np.cross(ta[1] - ta[0], ta[2] - ta[0])
+    n /= np.linalg.norm(n)
+    s = (v[:3] - ta[0]) @ n
+    need = np.maximum(delta - s, 0)
+    np.testing.assert_allclose(push[:3], 0.5 * need[:, None] * n[None], atol=1e-12)
+    # an open mesh (sign 0): the side of b holding most of a is the target side, the same here
+    np.testing.assert_allclose(contact_push(v, f, np.array([[1, 0]]), delta, sign=0.0)[3], push[3], atol=1e-12)
+    assert not contact_push(v, f, np.zeros((0, 2), int), delta, 1.0).any()
+
+
+def test_two_spheres_pushed_into_each_other_are_repaired_locally():
+    v, f, rest = two_spheres(0.06)
+    lab = ExactLabeler(f, rest)
+    assert lab.label(v).collides
+    r = repair_contacts(v, f, lab, delta=3 * lab.eps, smooth_steps=4, max_iter=60)
+    assert r.resolved and r.iterations >= 1 and r.pairs_per_iteration[-1] == 0
+    assert not lab.label(r.vertices).collides
+    moved = np.linalg.norm(r.vertices - v, axis=1)
+    n = len(v) // 2
+    # the far halves of both spheres stay exactly where they were; the contact region moved by about the overlap
+    far = np.concatenate([v[:n, 0] < -0.5, v[n:, 0] > 2.44])
+    assert moved[far].max() == 0.0
+    assert 0.01 < moved.max() < 0.2
+    # a mesh without intersections comes back unchanged, after one question to the labeler
+    free = repair_contacts(rest, f, lab, delta=3 * lab.eps)
+    assert free.resolved and free.iterations == 0 and np.array_equal(free.vertices, rest)
+
+
+class StuckLabeler:
+    """Always reports the same pair: the repair must stop at max_iter, never moving a vertex more than
+    max_step per iteration."""
+
+    def __init__(self, pair):
+        self.pair, self.calls = np.asarray(pair).reshape(1, 2), 0
+
+    def intersecting_pairs(self, vertices):
+        self.calls += 1
+        return self.pair
+
+
+def test_iteration_and_step_caps():
+    v, f, _ = two_spheres(0.06, subdivisions=1)
+    lab = StuckLabeler([0, len(f) // 2])
+    r = repair_contacts(v, f, lab, delta=0.5, smooth_steps=2, max_iter=5, max_step=0.01)
+    assert not r.resolved and r.iterations == 5 and lab.calls == 6
+    assert np.linalg.norm(r.vertices - v, axis=1).max() <= 5 * 0.01 + 1e-12
+    with pytest.raises(ValueError, match="delta"):
+        repair_contacts(v, f, lab, delta=0.0)
+    with pytest.raises(ValueError, match=r"\(V, 3\)"):
+        repair_contacts(v[None], f, lab, delta=0.1)
+
+
+def test_diffusion_operator_is_symmetric_and_spreads_one_ring_per_step():
+    v, f, _ = two_spheres(0.0, subdivisions=1)
+    w = diffusion_operator(f, len(v))
+    assert abs(w - w.T).max() < 1e-15
+    x = np.zeros(len(v))
+    x[0] = 1.0
+    ring = set(f[(f == 0).any(1)].ravel())
+    assert set(np.flatnonzero(w @ x)) == ring
+
+
+def test_settings_and_batch():
+    assert repair_settings(None) is None
+    assert repair_settings({"enabled": False}) is None
+    assert repair_settings({"delta": 2.0}) == RepairSettings(delta=2.0)
+    with pytest.raises(ValueError, match="unknown keys"):
+        repair_settings({"deltta": 2.0})
+    with pytest.raises(ValueError, match="delta > 0"):
+        RepairSettings(delta=-1.0)
+    v, f, rest = two_spheres(0.06)
+    lab = ExactLabeler(f, rest)
+    diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
+    out, ok, its = repair_meshes(np.stack([v, rest]), f, lab, RepairSettings(smooth_steps=4), lab.eps, diag,
+                                 outward_sign(f, rest))
+    assert ok.tolist() == [True, True] and its[1] == 0 and np.array_equal(out[1], rest)
+    assert not lab.label(out[0]).collides
