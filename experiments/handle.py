@@ -10,7 +10,9 @@ with the exact labeler before and after and printed. ``--objective cartesian`` k
 input mesh's vertices (optionally only those listed in ``--vertices``, a text file of vertex indices, e.g.
 a hand to keep in place) instead of close to its latent code. Results the exact labeler still finds
 self-penetrating are handled again with the larger margins of the run's ``handler.verify_margins`` (or
-``--margins``), and the result with the lowest PD is kept; ``--no-verify`` trusts the detector alone.
+``--margins``), and the result with the lowest PD is kept; ``--no-verify`` trusts the detector alone. For
+meshes, verification includes the contact repair (``handler.repair``: intersecting triangles pushed apart, tried
+on the input first; margin ``repair`` in the table); ``--no-repair`` turns it off.
 """
 
 from __future__ import annotations
@@ -78,6 +80,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="verification margins (default: the run's handler.verify_margins)")
     parser.add_argument("--no-verify", action="store_true",
                         help="trust the detector: no exact check and no re-handling with larger margins")
+    parser.add_argument("--no-repair", action="store_true",
+                        help="no contact repair of meshes (default: the run's handler.repair)")
     args = parser.parse_args(argv)
     with load_trained_run(args.run_dir) as run:
         resolve_files(run, args)
@@ -94,7 +98,8 @@ def resolve_files(run: TrainedRun, args: argparse.Namespace) -> None:
         if len(subset) == 0 or subset.min() < 0 or subset.max() >= run.n_vertices:
             raise UserInputError(f"{args.vertices}: vertex indices must lie in [0, {run.n_vertices})")
     res = run.resolve(v_user if v_user is not None else z_user, objective=args.objective,
-                      verify=not args.no_verify, margins=args.margins, subset=subset)
+                      verify=not args.no_verify, margins=args.margins, subset=subset,
+                      repair=False if getattr(args, "no_repair", False) else None)
     out = args.out or args.run_dir / "handled"
     out.mkdir(parents=True, exist_ok=True)
     after = res.vertices.double().cpu().numpy()
@@ -103,12 +108,13 @@ def resolve_files(run: TrainedRun, args: argparse.Namespace) -> None:
     for i, name in enumerate(names):
         write_mesh(out / f"{name}_resolved.obj", after[i], run.faces)
         print(f"{name:<24} {res.pd_input[i]:>10.4g} {res.pd_before[i]:>11.4g} {res.pd_after[i]:>10.4g}  "
-              f"{float((res.codes[i] - res.codes_before[i]).norm()):>12.2f}  {res.margin[i]:g}  "
+              f"{float((res.codes[i] - res.codes_before[i]).norm()):>12.2f}  "
+              f"{'repair' if res.repaired is not None and res.repaired[i] else f'{res.margin[i]:g}'}  "
               f"{100 * res.displacement_median[i] / res.diagonal:.3f} / "
               f"{100 * res.displacement_max[i] / res.diagonal:.3f}")
     sys.stdout.flush()
     print(f"wrote {len(names)} meshes to {out} (PD > 0: self-penetrating, in units of the mesh; margin: the "
-          "detector-logit margin of the kept result)", file=sys.stderr)
+          "detector-logit margin of the kept result, or repair: the contact repair's mesh)", file=sys.stderr)
 
 
 if __name__ == "__main__":

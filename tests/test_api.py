@@ -196,6 +196,29 @@ def test_resolve_with_contact_repair(trained, monkeypatch):
     assert not trained.resolve(verts[:1], verify=False, repair=True).repaired.any()  # needs verify
 
 
+def test_resolve_repair_first(trained, monkeypatch):
+    """handler.repair.first: colliding inputs are repaired directly, and that mesh is kept wherever it is free."""
+    from omegaconf import OmegaConf
+
+    from neuralcol.handling.contact_repair import RepairSettings, outward_sign, repair_meshes
+
+    z = _codes(trained, 200, 7)
+    verts = trained.decode(z)
+    verts = verts[torch.as_tensor(np.flatnonzero(trained.label(verts).collides)[:3])].double()
+    cfg = OmegaConf.create(OmegaConf.to_container(trained.cfg))
+    cfg.handler.repair.first = True
+    monkeypatch.setattr(trained, "cfg", cfg)
+    res = trained.resolve(verts, margins=[4.0])
+    rest = trained.space.rest_vertices.numpy()
+    s = RepairSettings(**{k: v for k, v in OmegaConf.to_container(cfg.handler.repair).items()})
+    direct, _, _ = repair_meshes(verts.numpy(), trained.faces, trained._labeler, s, trained._labeler.eps,
+                                 trained.diagonal, outward_sign(trained.faces, rest))
+    free = trained.label(direct).pd <= 0
+    assert free.any()
+    assert res.repaired[free].all() and (res.pd_after[free] <= 0).all()
+    np.testing.assert_array_equal(res.vertices[torch.as_tensor(free)].numpy(), direct[free])
+
+
 def test_load_run_errors_name_what_is_missing(run_dir, tmp_path):
     import neuralcol
 

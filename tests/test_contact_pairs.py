@@ -90,6 +90,23 @@ def test_select_pairs_far_on_the_mesh_close_in_the_examples():
     assert none.shape == (0, 2)
 
 
+def test_select_pairs_max_per_vertex_spreads_the_pairs():
+    """Cubes 0.05 apart, radius 1.02: each facing corner of A is within reach of three of B's (0.05 and two at
+    ~1.001): 12 pairs, every facing corner in 3; the cap keeps at most k per vertex, most frequent first."""
+    v, f = two_cubes(0.05)
+    free = select_contact_pairs(v[None], np.array([True]), f, radius=1.02, min_hops=1, n_pairs=100)
+    capped = select_contact_pairs(v[None], np.array([True]), f, radius=1.02, min_hops=1, n_pairs=100,
+                                  max_per_vertex=1)
+    counts = np.bincount(free.ravel(), minlength=len(v))
+    assert counts.max() == 3 and len(free) == 12
+    assert np.bincount(capped.ravel(), minlength=len(v)).max() == 1 and len(capped) == 4
+    assert {tuple(p) for p in capped} <= {tuple(p) for p in free}
+    two = select_contact_pairs(v[None], np.array([True]), f, radius=1.02, min_hops=1, n_pairs=5, max_per_vertex=2)
+    assert len(two) == 5 and np.bincount(two.ravel()).max() <= 2
+    with pytest.raises(ValueError, match="max_per_vertex"):
+        select_contact_pairs(v[None], np.array([True]), f, radius=1.02, min_hops=1, n_pairs=5, max_per_vertex=0)
+
+
 def test_mesh_detector_saves_and_loads_without_pickles(tmp_path):
     from neuralcol.nn.mesh_detector import MeshDetector
     from neuralcol.stages.mesh_detector import load_mesh_detector, mesh_logits, save_mesh_detector

@@ -41,7 +41,8 @@ def hop_neighbourhood(faces: np.ndarray, n_vertices: int, hops: int) -> sp.csr_m
 
 
 def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.ndarray, radius: float,
-                         min_hops: int, n_pairs: int, colliding_weight: float = 3.0) -> np.ndarray:
+                         min_hops: int, n_pairs: int, colliding_weight: float = 3.0,
+                         max_per_vertex: int | None = None) -> np.ndarray:
     """The P vertex pairs that most often come close in ``meshes`` while far apart on the mesh.
 
     Args:
@@ -53,6 +54,8 @@ def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.nda
             surface's own).
         n_pairs: P, the most pairs returned.
         colliding_weight: weight of a colliding mesh's close pairs.
+        max_per_vertex: a vertex takes part in at most this many chosen pairs (greedily, most frequent first),
+            so the pairs spread over more of the surface; None: no limit.
 
     Returns:
         (P', 2) int64 pairs (i < j), P' <= P, most frequent first (ties by index).
@@ -74,8 +77,24 @@ def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.nda
         return np.zeros((0, 2), np.int64)
     uniq, inverse = np.unique(np.concatenate(keys), return_inverse=True)
     score = np.bincount(inverse, weights=np.concatenate(weights))
-    order = np.lexsort((uniq, -score))[: int(n_pairs)]  # by score, ties by pair
-    return np.stack([uniq[order] // n_vert, uniq[order] % n_vert], 1).astype(np.int64)
+    order = np.lexsort((uniq, -score))  # by score, ties by pair
+    if max_per_vertex is None:
+        order = order[: int(n_pairs)]
+    else:
+        if int(max_per_vertex) < 1:
+            raise ValueError(f"max_per_vertex={max_per_vertex}: must be >= 1 (or None)")
+        used = np.zeros(n_vert, np.int64)
+        keep = []
+        for k in order:
+            i, j = divmod(int(uniq[k]), n_vert)
+            if used[i] < max_per_vertex and used[j] < max_per_vertex:
+                keep.append(k)
+                used[i] += 1
+                used[j] += 1
+                if len(keep) == int(n_pairs):
+                    break
+        order = np.asarray(keep, np.int64)
+    return np.stack([uniq[order] // n_vert, uniq[order] % n_vert], 1).astype(np.int64).reshape(-1, 2)
 
 
 def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:

@@ -157,7 +157,7 @@ class RepairSettings:
     max_smooth: int | None = None  # grow the diffusion up to this when stalled (None: fixed)
     max_iter: int = 60
     max_step: float = 0.002     # no vertex moves more than this fraction of the diagonal per iteration
-    first: bool = False         # resolve: repair the input first, the neural handler only for what it leaves
+    first: bool = True          # resolve: repair the input first, the neural handler only for what it leaves
 
     def __post_init__(self):
         if self.delta <= 0 or self.smooth_steps < 0 or self.max_iter < 0 or self.max_step <= 0:

@@ -381,7 +381,10 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
             instead of the latent detector's logit on Z.
         repair: :class:`~neuralcol.handling.contact_repair.RepairSettings` or None: the returned meshes the exact
             labeler still finds self-penetrating after the margins get the contact repair (our addition), which
-            is kept where it lowers the exact PD; needs ``labeler`` (its ``intersecting_pairs``, ``eps``).
+            is kept where it lowers the exact PD; with ``repair.first`` the colliding inputs are also repaired
+            directly and that mesh is kept wherever it comes out free (``pd_after_detector`` and
+            ``pd_after_escalation`` still describe the neural path); needs ``labeler`` (``intersecting_pairs``,
+            ``eps``).
         progress: a progress bar over the repaired meshes.
     """
     if repair is not None and labeler is None:
@@ -443,18 +446,29 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
         out[ok] = returned(z[ok], rows)
     out = out.numpy()
     pd_esc, repaired = pd_v.copy(), np.zeros(n, dtype=bool)
-    todo = np.flatnonzero(ok.numpy() & ~(pd_v <= 0))
-    if repair is not None and len(todo):
+    if repair is not None:
         from neuralcol.handling.contact_repair import outward_sign, repair_meshes
 
         rest = space.rest_vertices.detach().cpu().numpy()
         faces = space.faces.detach().cpu().numpy()
         diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
-        fixed, _, _ = repair_meshes(out[todo], faces, labeler, repair, float(labeler.eps), diag,
-                                    outward_sign(faces, rest), progress=progress)
-        pd_fix = label(fixed)
-        better = np.nan_to_num(pd_fix, nan=np.inf) < np.nan_to_num(pd_v[todo], nan=np.inf)
-        rows = todo[better]
-        out[rows], pd_v[rows], stage[rows], repaired[rows] = fixed[better], pd_fix[better], len(margins) + 1, True
+
+        def repaired_meshes(meshes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            fixed, _, _ = repair_meshes(meshes, faces, labeler, repair, float(labeler.eps), diag,
+                                        outward_sign(faces, rest), progress=progress)
+            return fixed, label(fixed)
+
+        todo = np.flatnonzero(ok.numpy() & ~(pd_v <= 0))
+        if len(todo):  # the neural result still collides: repair it
+            fixed, pd_fix = repaired_meshes(out[todo])
+            better = np.nan_to_num(pd_fix, nan=np.inf) < np.nan_to_num(pd_v[todo], nan=np.inf)
+            rows = todo[better]
+            out[rows], pd_v[rows], stage[rows], repaired[rows] = fixed[better], pd_fix[better], len(margins) + 1, True
+        first = np.flatnonzero(~(pd_in <= 0)) if repair.first else np.zeros(0, np.int64)
+        if len(first):  # repair first: the input repaired, kept wherever it comes out free
+            fixed, pd_fix = repaired_meshes(v_user[torch.as_tensor(first)].numpy())
+            free = np.nan_to_num(pd_fix, nan=np.inf) <= 0
+            rows = first[free]
+            out[rows], pd_v[rows], stage[rows], repaired[rows] = fixed[free], pd_fix[free], len(margins) + 1, True
     return MeshResolution(out, decoded.numpy(), z, z_user, pd_in, pd_after, pd_v, stage,
                           res.feasible.numpy(), pd_esc, repaired)

@@ -100,7 +100,7 @@ def train_mesh_detector(space, dc_z: np.ndarray, dc_collides: np.ndarray, real_v
     sel_v = np.concatenate([dc_v[::stride], np.asarray(real_vertices, np.float32)])
     sel_y = np.concatenate([dc_collides[::stride], np.asarray(real_collides, bool)])
     pairs = select_contact_pairs(sel_v, sel_y, faces, radius, int(pc["min_hops"]), int(pc["n_pairs"]),
-                                 float(pc["colliding_weight"]))
+                                 float(pc["colliding_weight"]), pc.get("max_per_vertex"))
     del sel_v
     if len(pairs) == 0:
         raise ValueError(f"no vertex pair at least {pc['min_hops']} edges apart comes within "
