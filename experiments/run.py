@@ -224,8 +224,8 @@ def print_realistic(r: dict | None) -> None:
               f"detector-guided, {h['verified']['resolved_rate']:.1%} verified; median vertex displacement "
               f"{'n/a' if med is None else f'{med:.2%}'} of the diagonal")
         if h.get("repair"):
-            print(f"    (verified with the margins alone {h['verified_margins_only']['resolved_rate']:.1%}; the contact "
-                  f"repair freed {h['repair']['n_repaired']} more)")
+            print(f"    (verified with the handler's margins alone {h['verified_margins_only']['resolved_rate']:.1%}; "
+                  f"{h['repair']['n_repaired']} of the returned meshes are the contact repair's)")
         ro = h.get("repair_only")
         if ro:
             med = ro["displacement_median_frac"]
