@@ -30,11 +30,11 @@ from neuralcol.collision.backends import build_labeler
 from neuralcol.collision.pool import LabelPool
 from neuralcol.data.features import dataset_features
 from neuralcol.geometry.mesh_io import write_meshes
+from neuralcol.handling.contact_repair import repair_settings
 from neuralcol.metrics.plots import partition_colors, render_mesh_png
 from neuralcol.metrics.reconstruction import relative_vertex_error
 from neuralcol.stages.autoencoder import train_or_load_latent_space
 from neuralcol.stages.detector import load_detector, samples_cache_dir, shared_test_set, train_detector
-from neuralcol.handling.contact_repair import repair_settings
 from neuralcol.stages.handling import alm_settings, evaluate_handler, export_handling
 from neuralcol.stages.mesh_detector import mesh_detector_stage
 from neuralcol.stages.model_size import search_model_size, validate_model_size

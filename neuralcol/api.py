@@ -364,7 +364,8 @@ class TrainedRun:
 
     # ------------------------------------------------------------------ handling
     def resolve(self, vertices_or_codes, objective: str = "latent", verify: bool = True, margins=None,
-                subset=None, anchor: str = "median", constraint: str = "latent", repair: bool | None = None) -> Resolved:
+                subset=None, anchor: str = "median", constraint: str = "latent",
+                repair: bool | None = None) -> Resolved:
         """Resolve self-collisions: meshes come back as the user's meshes, corrected; codes as decoded codes.
 
         The augmented-Lagrangian handler (docs/handler.md) moves each input's latent code to the nearest code

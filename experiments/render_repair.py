@@ -1,0 +1,72 @@
+"""Render colliding realistic meshes of a finished run before and after the contact repair (docs/real_meshes.md):
+
+    python -m experiments.render_repair RUN_DIR [OUT_DIR] [N]
+
+Writes ``OUT_DIR/repair_<i>_{in,out}.png`` (default ``RUN_DIR/repair_renders``) for the first N (default 2)
+colliding clear realistic meshes the repair frees, penetrating vertices in red, and prints each one's PD, the
+iterations and the largest vertex move (fractions of the diagonal). Labels in this process.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from experiments.evaluate_realistic import realistic_config
+from neuralcol.api import load_run
+from neuralcol.data.features import dataset_features
+from neuralcol.handling.contact_repair import outward_sign, repair_contacts, repair_settings
+from neuralcol.metrics.plots import depth_colors, render_mesh_png
+from neuralcol.stages.detector import samples_cache_dir
+from neuralcol.stages.realistic import clear_mask, realistic_set
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = sys.argv[1:] if argv is None else argv
+    if not args:
+        raise SystemExit(__doc__)
+    run_dir = Path(args[0])
+    out_dir = Path(args[1]) if len(args) > 1 else run_dir / "repair_renders"
+    n_show = int(args[2]) if len(args) > 2 else 2
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with load_run(run_dir, workers=0, progress=False) as run:
+        cfg = run.cfg
+        ds = instantiate(cfg.dataset.source)
+        acap_cfg = OmegaConf.to_container(cfg.acap, resolve=True)
+        norm_cfg = acap_cfg.pop("normalizer")
+        feats = dataset_features(ds, cfg.dataset.reference_index, acap_cfg, norm_cfg,
+                                 cache_dir=Path(cfg.paths.cache_dir) / "features")
+        pool = run._label_pool()
+        lab = run._labeler
+        folder = samples_cache_dir(cfg.paths.cache_dir, run.metrics["autoencoder"]["cache_key"], lab)
+        meshes, pd, _ = realistic_set(ds.vertices.numpy(), feats.features.numpy(), feats.acap,
+                                      run.space.meta["val_index"], pool, realistic_config(cfg, []), folder,
+                                      float(lab.eps))
+        colliding = np.flatnonzero(clear_mask(pd, lab.eps, 10) & (np.nan_to_num(pd) > 0))
+        s = run._repair_settings(True) or repair_settings({})
+        diag = run.diagonal
+        sign = outward_sign(run.faces, run.space.rest_vertices.numpy())
+        shown = 0
+        for i in colliding:
+            r = repair_contacts(meshes.vertices[i], run.faces, lab, s.delta * lab.eps, s.smooth_steps, s.max_iter,
+                                sign, max_step=s.max_step * diag, max_smooth=s.max_smooth)
+            if not r.resolved:
+                continue
+            moved = np.linalg.norm(r.vertices - meshes.vertices[i], axis=1)
+            print(f"mesh {i}: PD {pd[i] / diag:.4f} of the diagonal, {r.iterations} iterations, largest move "
+                  f"{moved.max() / diag:.4f} of the diagonal")
+            for name, v in (("in", meshes.vertices[i]), ("out", r.vertices)):
+                render_mesh_png(out_dir / f"repair_{i}_{name}.png", v, run.faces,
+                                depth_colors(lab.vertex_depths(v)), title=f"{name}: PD {lab.label(v).pd:.4f}")
+            shown += 1
+            if shown == n_show:
+                break
+        print(f"wrote {2 * shown} images to {out_dir}")
+
+
+if __name__ == "__main__":
+    main()
