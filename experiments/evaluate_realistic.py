@@ -52,23 +52,30 @@ def repair_config(cfg, overrides: list[str]):
     return repair_settings(OmegaConf.to_container(OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides)))))
 
 
+def run_realistic_set(run, rcfg):
+    """A loaded run's data set, ACAP features, label pool, samples cache folder and realistic set (built and
+    labeled once, then read from the cache): ``(ds, feats, pool, folder, meshes, pd)``."""
+    from neuralcol.stages.detector import samples_cache_dir
+
+    cfg = run.cfg
+    ds = instantiate(cfg.dataset.source)
+    acap_cfg = OmegaConf.to_container(cfg.acap, resolve=True)
+    norm_cfg = acap_cfg.pop("normalizer")
+    feats = dataset_features(ds, cfg.dataset.reference_index, acap_cfg, norm_cfg,
+                             cache_dir=Path(cfg.paths.cache_dir) / "features")
+    pool = run._label_pool()
+    folder = samples_cache_dir(cfg.paths.cache_dir, run.metrics["autoencoder"]["cache_key"], run._labeler)
+    meshes, pd, _ = realistic_set(ds.vertices.numpy(), feats.features.numpy(), feats.acap,
+                                  run.space.meta["val_index"], pool, rcfg, folder, float(run._labeler.eps))
+    return ds, feats, pool, folder, meshes, pd
+
+
 def evaluate_run(run_dir: Path, overrides: list[str], workers: int | None, train_mesh: bool = False,
                  mesh_overrides=(), repair_overrides=()) -> dict:
     with load_run(run_dir, workers=workers, progress=False) as run:
         cfg = run.cfg
         rcfg = realistic_config(cfg, overrides)
-        ds = instantiate(cfg.dataset.source)
-        acap_cfg = OmegaConf.to_container(cfg.acap, resolve=True)
-        norm_cfg = acap_cfg.pop("normalizer")
-        feats = dataset_features(ds, cfg.dataset.reference_index, acap_cfg, norm_cfg,
-                                 cache_dir=Path(cfg.paths.cache_dir) / "features")
-        pool = run._label_pool()
-        from neuralcol.stages.detector import samples_cache_dir
-
-        folder = samples_cache_dir(cfg.paths.cache_dir, run.metrics["autoencoder"]["cache_key"], run._labeler)
-        meshes, pd, _ = realistic_set(ds.vertices.numpy(), feats.features.numpy(), feats.acap,
-                                      run.space.meta["val_index"], pool, rcfg, folder,
-                                      float(run._labeler.eps))
+        ds, feats, pool, folder, meshes, pd = run_realistic_set(run, rcfg)
         mesh_net, mesh_report = None, None
         if not train_mesh and (run_dir / "mesh_detector.pt").is_file():
             from neuralcol.stages.mesh_detector import load_mesh_detector

@@ -13,16 +13,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from hydra.utils import instantiate
-from omegaconf import OmegaConf
 
-from experiments.evaluate_realistic import realistic_config
+from experiments.evaluate_realistic import realistic_config, run_realistic_set
 from neuralcol.api import load_run
-from neuralcol.data.features import dataset_features
 from neuralcol.handling.contact_repair import outward_sign, repair_contacts, repair_settings
 from neuralcol.metrics.plots import depth_colors, render_mesh_png
-from neuralcol.stages.detector import samples_cache_dir
-from neuralcol.stages.realistic import clear_mask, realistic_set
+from neuralcol.stages.realistic import clear_mask
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -34,18 +30,8 @@ def main(argv: list[str] | None = None) -> None:
     n_show = int(args[2]) if len(args) > 2 else 2
     out_dir.mkdir(parents=True, exist_ok=True)
     with load_run(run_dir, workers=0, progress=False) as run:
-        cfg = run.cfg
-        ds = instantiate(cfg.dataset.source)
-        acap_cfg = OmegaConf.to_container(cfg.acap, resolve=True)
-        norm_cfg = acap_cfg.pop("normalizer")
-        feats = dataset_features(ds, cfg.dataset.reference_index, acap_cfg, norm_cfg,
-                                 cache_dir=Path(cfg.paths.cache_dir) / "features")
-        pool = run._label_pool()
+        _, _, _, _, meshes, pd = run_realistic_set(run, realistic_config(run.cfg, []))
         lab = run._labeler
-        folder = samples_cache_dir(cfg.paths.cache_dir, run.metrics["autoencoder"]["cache_key"], lab)
-        meshes, pd, _ = realistic_set(ds.vertices.numpy(), feats.features.numpy(), feats.acap,
-                                      run.space.meta["val_index"], pool, realistic_config(cfg, []), folder,
-                                      float(lab.eps))
         colliding = np.flatnonzero(clear_mask(pd, lab.eps, 10) & (np.nan_to_num(pd) > 0))
         s = run._repair_settings(True) or repair_settings({})
         diag = run.diagonal
