@@ -10,6 +10,11 @@ import pytest
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # `make test` runs two pytest workers on the two cores (pytest-xdist, one worker per test file): one thread
+    # each, and for the runs the tests start as subprocesses, so the workers do not oversubscribe the cores
+    os.environ["OMP_NUM_THREADS"] = "1"
+    torch.set_num_threads(1)
 # SCAPE is read where it lives (never copied): $NEURALCOL_DATA/scape, else ../shared/data/scape.
 DATA_DIR = Path(os.environ.get("NEURALCOL_DATA", ROOT.parent / "shared" / "data"))
 SCAPE_DIR = DATA_DIR / "scape"

@@ -158,19 +158,49 @@ def test_code_noise_only_while_training():
     assert torch.equal(plain._noisy(z, "train"), z)
 
 
+def test_interpolations_only_while_training_and_on_segments_between_batch_meshes():
+    """interp_ratio adds ceil(ratio * B) rows (1 - t) x_i + t x_j, i != j, t in interp_t, to training batches."""
+    from neuralcol.lit.autoencoder import AutoencoderLitModule
+
+    torch.manual_seed(0)
+    net = BilevelAutoencoder(Level1Autoencoder(5, 2, hidden=3))
+    mod = AutoencoderLitModule(net, 1, optimizer=lambda params: torch.optim.Adam(params), interp_ratio=0.6,
+                               interp_t=(-0.5, 1.5))
+    x = torch.eye(5).view(5, 5, 1)  # batch of 5 "meshes", one-hot: each extra row names its pair and t
+    assert torch.equal(mod._interpolated(x, "val"), x)
+    out = mod._interpolated(x, "train")
+    assert out.shape == (5 + 3, 5, 1) and torch.equal(out[:5], x)  # ceil(0.6 * 5) = 3
+    ts = []
+    for row in out[5:, :, 0]:
+        nz = torch.nonzero(row.abs() > 1e-7).flatten()
+        assert len(nz) == 2 and torch.isclose(row.sum(), torch.tensor(1.0)), row  # two meshes, weights sum to 1
+        ts += row[nz].tolist()
+    assert all(-0.5 - 1e-6 <= t <= 1.5 + 1e-6 for t in ts)
+    plain = AutoencoderLitModule(net, 1, optimizer=lambda params: torch.optim.Adam(params))
+    assert torch.equal(plain._interpolated(x, "train"), x)
+    for bad in ({"interp_ratio": -0.1}, {"interp_t": (1.0, 0.0)}):
+        try:
+            AutoencoderLitModule(net, 1, optimizer=lambda params: torch.optim.Adam(params), **bad)
+        except ValueError:
+            continue
+        raise AssertionError(f"{bad} must be refused")
+
+
 def test_cache_key_ignores_settings_spelled_out_at_their_neutral_value(tube_dataset):
     """Adding `activation: tanh` / `code_noise: 0` to a config keeps the cached latent space's key; other
     values change it."""
     from neuralcol.stages.autoencoder import autoencoder_cache_key
 
     base = {"level1": {"epochs": 3, "lr": 0.01}, "level2": {"epochs": 3}, "box_from": "train"}
-    spelled = {"level1": {"epochs": 3, "lr": 0.01, "activation": "tanh", "code_noise": 0.0},
-               "level2": {"epochs": 3, "code_noise": 0.0}, "box_from": "train"}
+    spelled = {"level1": {"epochs": 3, "lr": 0.01, "activation": "tanh", "code_noise": 0.0, "interp_ratio": 0.0},
+               "level2": {"epochs": 3, "code_noise": 0.0, "interp_ratio": 0.0}, "box_from": "train",
+               "interp_t": [0, 1]}
     key = lambda cfg: autoencoder_cache_key(tube_dataset, 0, {}, cfg, {"n_components": 2}, 0)  # noqa: E731
     assert key(base) == key(spelled)
     assert spelled["level1"]["activation"] == "tanh", "the caller's config is not modified"
     for group, name, value in (("level1", "activation", "linear"), ("level1", "code_noise", 0.1),
-                               ("level2", "code_noise", 0.1)):
+                               ("level2", "code_noise", 0.1), ("level1", "interp_ratio", 0.5),
+                               ("level2", "interp_ratio", 1.0), (None, "interp_t", [-0.5, 1.5])):
         changed = {k: dict(v) if isinstance(v, dict) else v for k, v in spelled.items()}
-        changed[group][name] = value
+        (changed if group is None else changed[group])[name] = value
         assert key(changed) != key(base), (group, name)

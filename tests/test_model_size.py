@@ -103,7 +103,7 @@ def test_auto_search_end_to_end(tmp_path, capsys):
 
     cfg = _cfg(tmp_path, "model_size=auto", "model_size.n_components=[2,4]", "model_size.level2_dim=[0,1]",
                "model_size.width=[0.5,1.0]", "model_size.budget=80", "model_size.recon_tol=0.5",
-               "detector.max_rounds=0")
+               "detector.max_rounds=0", "realistic.enabled=false", "mesh_detector.enabled=false")
     metrics = run(cfg, tmp_path / "run")
     doc = json.loads((tmp_path / "run" / "model_size" / "model_size.json").read_text())
     assert len(doc["latent"]) == 4 and len(doc["detector"]) == 2 and doc["budget"] == 80

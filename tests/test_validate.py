@@ -49,6 +49,8 @@ def test_shipped_configs_are_valid(preset):
     ("method.candidates=0", "method.candidates=0: must be an integer >= 1"),
     ("detector.targets.pd_floor=0.5", "detector.targets.pd_floor=0.5: must be < 0"),
     ("autoencoder.level1.code_noise=-0.1", "autoencoder.level1.code_noise=-0.1: must be >= 0"),
+    ("autoencoder.level2.interp_ratio=-1", "autoencoder.level2.interp_ratio=-1: must be >= 0"),
+    ("autoencoder.interp_t=[1.0,0.0]", "autoencoder.interp_t"),
 ])
 def test_bad_settings_are_named(override, key):
     problems = config_problems(_compose([override]))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import lightning as L
@@ -30,16 +31,28 @@ class AutoencoderLitModule(L.LightningModule):
             (``e ~ N(0, 1)``, ``std`` per latent entry over the batch, not differentiated), so it has to be smooth
             at the scale of the codes' spread instead of switching between training codes. 0 turns it off. Applied
             to Z_0 in stage 1 and to the level-2 codes in stage 2; never at validation. See docs/autoencoder.md.
+        interp_ratio: ACAP-feature interpolation while training (issue 27, item 3): each training batch of B
+            meshes gains ``ceil(interp_ratio * B)`` rows ``(1 - t) x_i + t x_j`` of two of its meshes, ``t ~
+            U(interp_t)``, so the autoencoder also learns the poses between (and, for t outside [0, 1], slightly
+            beyond) its training meshes, the meshes a user brings. The features are normalised by an affine map,
+            so this is the interpolation of the raw ACAP features. 0 turns it off; never at validation.
+        interp_t: (lo, hi) range of t.
     """
 
     def __init__(self, net: BilevelAutoencoder, stage: int, optimizer: Callable, scheduler: Callable | None = None,
                  edges: torch.Tensor | None = None, w_sparsity: float = 0.0, w_smoothness: float = 0.0,
-                 w_balance: float = 0.0, code_noise: float = 0.0):
+                 w_balance: float = 0.0, code_noise: float = 0.0, interp_ratio: float = 0.0,
+                 interp_t: tuple[float, float] = (0.0, 1.0)):
         super().__init__()
         if stage not in (1, 2):
             raise ValueError(f"stage={stage}: must be 1 or 2")
         if code_noise < 0:
             raise ValueError(f"code_noise={code_noise}: must be >= 0")
+        if interp_ratio < 0:
+            raise ValueError(f"interp_ratio={interp_ratio}: must be >= 0")
+        interp_t = tuple(float(t) for t in interp_t)
+        if len(interp_t) != 2 or not interp_t[0] <= interp_t[1]:
+            raise ValueError(f"interp_t={interp_t}: must be [lo, hi] with lo <= hi")
         if stage == 2 and net.level2 is None:
             raise ValueError("stage 2 needs net.level2")
         self.save_hyperparameters(ignore=["net", "edges"])
@@ -69,8 +82,21 @@ class AutoencoderLitModule(L.LightningModule):
         std = z.detach().std(0, keepdim=True)  # (1, D)
         return z + sigma * std * torch.randn_like(z)
 
+    def _interpolated(self, x: torch.Tensor, split: str) -> torch.Tensor:
+        """(B, ...) training features plus ``ceil(interp_ratio * B)`` interpolations of random pairs of them."""
+        ratio = float(self.hparams.interp_ratio)
+        if split != "train" or ratio == 0.0 or x.shape[0] < 2:
+            return x
+        n, m = x.shape[0], math.ceil(ratio * x.shape[0])
+        i = torch.randint(n, (m,), device=x.device)
+        j = (i + torch.randint(1, n, (m,), device=x.device)) % n  # j != i
+        lo, hi = self.hparams.interp_t
+        t = (lo + (hi - lo) * torch.rand(m, device=x.device, dtype=x.dtype)).view(-1, *([1] * (x.dim() - 1)))
+        return torch.cat([x, (1 - t) * x[i] + t * x[j]], 0)
+
     def step(self, batch, split: str) -> torch.Tensor:
         (x,) = batch
+        x = self._interpolated(x, split)
         if self.stage == 1:
             recon = self.net.level1.decode(self._noisy(self.net.level1.encode(x), split))
             mse = F.mse_loss(recon, x)

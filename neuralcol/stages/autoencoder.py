@@ -123,15 +123,23 @@ def connect_partition(partition: np.ndarray, edges: np.ndarray, k: int, max_roun
 
 # settings added after caches existed: at these values they leave the key as it was (an unchanged model keeps
 # its cached space when a config spells the default out)
-KEY_NEUTRAL = {("level1", "activation"): "tanh", ("level1", "code_noise"): 0.0, ("level2", "code_noise"): 0.0}
+KEY_NEUTRAL = {("level1", "activation"): "tanh", ("level1", "code_noise"): 0.0, ("level2", "code_noise"): 0.0,
+               ("level1", "interp_ratio"): 0.0, ("level2", "interp_ratio"): 0.0, (None, "interp_t"): [0.0, 1.0]}
 
 
 def _key_config(ae_cfg: dict) -> dict:
     out = {k: dict(v) if isinstance(v, dict) else v for k, v in ae_cfg.items()}
     for (group, name), neutral in KEY_NEUTRAL.items():
-        if isinstance(out.get(group), dict) and name in out[group] and out[group][name] == neutral:
-            del out[group][name]
+        where = out if group is None else out.get(group)
+        if isinstance(where, dict) and name in where and _same(where[name], neutral):
+            del where[name]
     return out
+
+
+def _same(value, neutral) -> bool:
+    if isinstance(neutral, list):
+        return isinstance(value, (list, tuple)) and [float(v) for v in value] == neutral
+    return value == neutral
 
 
 def autoencoder_cache_key(ds: MeshDataset, reference_index: int, acap_kwargs: dict, ae_cfg: dict,
@@ -199,6 +207,7 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
     edges = edge_topology(faces).edges
     k = int(lat["n_components"])
     l1cfg, l2cfg = ae["level1"], ae["level2"]
+    interp_t = tuple(ae.get("interp_t", (0.0, 1.0)))
     init = spatial_attention_init(rest, k, float(l1cfg["attention_init_scale"]), seed)
     level1 = Level1Autoencoder(ds.n_vertices, k, hidden=int(l1cfg["hidden"]), attention_init=init,
                                activation=str(l1cfg.get("activation", "tanh")))
@@ -207,7 +216,8 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
     stage1 = AutoencoderLitModule(
         net, 1, optimizer=instantiate(ae["optimizer"], lr=l1cfg["lr"]), scheduler=_scheduler(ae, int(l1cfg["epochs"])),
         edges=torch.as_tensor(edges), w_sparsity=l1cfg["w_sparsity"], w_smoothness=l1cfg["w_smoothness"],
-        w_balance=l1cfg["w_balance"], code_noise=float(l1cfg.get("code_noise", 0.0)))
+        w_balance=l1cfg["w_balance"], code_noise=float(l1cfg.get("code_noise", 0.0)),
+        interp_ratio=float(l1cfg.get("interp_ratio", 0.0)), interp_t=interp_t)
     _trainer(ae, int(l1cfg["epochs"]), _stage_logger(logger, "autoencoder_level1")).fit(stage1, dm)
     with torch.no_grad():
         raw_part = net.level1.attention().argmax(0).cpu().numpy()
@@ -218,7 +228,8 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
                                     hidden=int(l2cfg["hidden"]))
     stage2 = AutoencoderLitModule(net, 2, optimizer=instantiate(ae["optimizer"], lr=l2cfg["lr"]),
                                   scheduler=_scheduler(ae, int(l2cfg["epochs"])),
-                                  code_noise=float(l2cfg.get("code_noise", 0.0)))
+                                  code_noise=float(l2cfg.get("code_noise", 0.0)),
+                                  interp_ratio=float(l2cfg.get("interp_ratio", 0.0)), interp_t=interp_t)
     if int(l2cfg["epochs"]) > 0:
         _trainer(ae, int(l2cfg["epochs"]), _stage_logger(logger, "autoencoder_level2")).fit(stage2, dm)
     net.eval().cpu()

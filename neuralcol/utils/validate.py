@@ -62,10 +62,14 @@ def config_problems(cfg: DictConfig) -> list[str]:
         need("method.candidates", lambda v: is_int(v) and v >= 1, "must be an integer >= 1")
     if _get(cfg, "detector.targets.pd_floor") is not None:
         need("detector.targets.pd_floor", lambda v: float(v) < 0, "must be < 0 (or null: no lower clip)")
-    for key in ("autoencoder.level1.code_noise", "autoencoder.level2.code_noise", "method.update.min_steps",
+    for key in ("autoencoder.level1.code_noise", "autoencoder.level2.code_noise", "autoencoder.level1.interp_ratio",
+                "autoencoder.level2.interp_ratio", "method.update.min_steps",
                 "method.bootstrap.min_steps"):
         if _get(cfg, key) is not None:
             need(key, lambda v: float(v) >= 0, "must be >= 0")
+    if _get(cfg, "autoencoder.interp_t") is not None:
+        need("autoencoder.interp_t", lambda v: len(v) == 2 and float(v[0]) <= float(v[1]),
+             "must be [lo, hi] with lo <= hi, e.g. [0.0, 1.0]")
     need("labeling.pool.workers", lambda v: is_int(v) and v >= 0, "must be an integer >= 0 (0 or 1: in-process)")
     if _get(cfg, "labeling.pool.timeout") is not None:
         need("labeling.pool.timeout", lambda v: float(v) > 0, "must be > 0 seconds, or null for no limit")
