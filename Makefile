@@ -27,11 +27,16 @@ install: $(STAMP)  ## create .venv with a CPU torch and install neuralcol (edita
 lint: $(STAMP)  ## ruff
 	$(BIN)/ruff check neuralcol experiments tests bench
 
+# test files run on this many pytest workers (pytest-xdist; one file per worker, one thread per worker:
+# tests/conftest.py). TEST_WORKERS=0 runs them in this process.
+TEST_WORKERS ?= 2
+XDIST   := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile)
+
 test: $(STAMP)  ## fast test suite (excludes `slow`)
-	$(PYTHON) -m pytest -m "not slow" -q $(ARGS)
+	$(PYTHON) -m pytest -m "not slow" -q $(XDIST) $(ARGS)
 
 test-full: $(STAMP)  ## every test, slow ones included
-	$(PYTHON) -m pytest -q $(ARGS)
+	$(PYTHON) -m pytest -q $(XDIST) $(ARGS)
 
 run: $(STAMP)  ## main job on the embedded procedural data set (proc_hand)
 	$(PYTHON) -m experiments.run $(ARGS)
