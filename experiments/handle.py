@@ -113,6 +113,11 @@ def resolve_files(run: TrainedRun, args: argparse.Namespace) -> None:
               f"{100 * res.displacement_median[i] / res.diagonal:.3f} / "
               f"{100 * res.displacement_max[i] / res.diagonal:.3f}")
     sys.stdout.flush()
+    outside = int(run.space.outside_box(res.codes_before).sum())
+    if outside:
+        print(f"note: {outside} of {len(names)} inputs encode outside the box Z the latent detector was trained in: "
+              "its answer there is an extrapolation; the exact PD columns and the contact repair do not depend on it",
+              file=sys.stderr)
     print(f"wrote {len(names)} meshes to {out} (PD > 0: self-penetrating, in units of the mesh; margin: the "
           "detector-logit margin of the kept result, or repair: the contact repair's mesh)", file=sys.stderr)
 

@@ -38,13 +38,16 @@ class Detection(NamedTuple):
     prob (B,): collision probability. logit (B,): its logit (the handler's constraint is ``logit <= -margin``).
     pd (B,): the detector's PD estimate in mesh units, ``pd_unit * smooth_max(S, temperature)`` (the quantity
     its loss fits to the exact PD; trained on targets clipped to ``detector.loss.pd_clip`` units, so deep
-    penetrations saturate). pd_sub (B, K): the per-sub-domain estimates ``pd_unit * S_i``.
+    penetrations saturate). pd_sub (B, K): the per-sub-domain estimates ``pd_unit * S_i``. outside_box (B,) bool:
+    the code (of a mesh: its encoding) lies outside the box Z the latent detector was trained in, so its answer is
+    an extrapolation (``run.detect(mesh, inputs="mesh")`` reads the mesh instead); None where not computed.
     """
 
     prob: torch.Tensor
     logit: torch.Tensor
     pd: torch.Tensor
     pd_sub: torch.Tensor
+    outside_box: torch.Tensor | None = None
 
 
 class Resolved(NamedTuple):
@@ -283,8 +286,8 @@ class TrainedRun:
                                        out.s * self.pd_unit))
         if not parts:
             empty = z.new_zeros(0)
-            return Detection(empty, empty, empty, z.new_zeros(0, self.space.n_parts))
-        det = Detection(*(torch.cat(t) for t in zip(*parts)))
+            return Detection(empty, empty, empty, z.new_zeros(0, self.space.n_parts), z.new_zeros(0, dtype=bool))
+        det = Detection(*(torch.cat(t) for t in zip(*(p[:4] for p in parts))), self.space.outside_box(z))
         if use_mesh:
             from neuralcol.stages.mesh_detector import mesh_logits
 

@@ -65,6 +65,14 @@ def test_detect_encode_decode_label(trained):
                                trained.detector(trained.encode(verts)).prob)
     one = trained.detect(verts[0].numpy())  # one (V, 3) numpy mesh
     assert one.prob.shape == (1,)
+    # outside_box: inside Z for codes from U(Z); an entry past the box's edge by a hair flags the row only
+    assert not trained.detect(trained.space.sample(8)).outside_box.any()
+    lo, hi = trained.space.box_lo, trained.space.box_hi
+    edge = torch.stack([lo, hi, lo.clone(), hi.clone()])
+    edge[2, 0] -= 1e-3 * (hi[0] - lo[0])
+    edge[3, -1] += 1e-3 * (hi[-1] - lo[-1])
+    assert trained.detect(edge).outside_box.tolist() == [False, False, True, True]
+    assert torch.equal(trained.detect(verts).outside_box, trained.space.outside_box(trained.encode(verts)))
     labels = trained.label(verts)
     ref = ExactLabeler(trained.faces, trained.space.rest_vertices.numpy(), partition=trained.space.partition.numpy(),
                        **{k: v for k, v in OmegaConf.to_container(trained.cfg.labeling.labeler).items()
