@@ -280,6 +280,8 @@ REALISTIC_ROWS = (  # (title, path into metrics["realistic"] or metrics, percent
     ("real meshes: FNR, mesh detector", ("realistic", "detection_mesh", "fnr"), True),
     ("U(Z): accuracy, mesh detector", ("mesh_detector", "test", "accuracy"), True),
     ("real meshes: round trip keeps the label", ("realistic", "round_trip", "agreement"), True),
+    ("real meshes: resolve, collision-free (detector-guided)",
+     ("realistic", "handling", "detector_only", "resolved_rate"), True),
     ("real meshes: resolve, collision-free (verified)", ("realistic", "handling", "verified", "resolved_rate"), True),
     ("real meshes: resolve, median displacement (% diag)",
      ("realistic", "handling", "displacement_median_frac"), True),
@@ -315,7 +317,8 @@ def realistic_rows(runs: list[dict], names: list[str]) -> list[str]:
         if any(c != "—" for c in cells):
             out.append(f"| {title} | " + " | ".join(cells) + " |")
     n = [r["realistic"]["n_clear"] for r in runs if r.get("realistic")]
-    return out + ["", f"Real meshes: the realistic set's clear cases ({min(n)}-{max(n)} meshes nobody trained on, "
+    count = str(min(n)) if min(n) == max(n) else f"{min(n)}-{max(n)}"
+    return out + ["", f"Real meshes: the realistic set's clear cases ({count} meshes nobody trained on, "
                   "labeled exactly, about half colliding; docs/real_meshes.md)."] if out else []
 
 
