@@ -37,10 +37,8 @@ import hydra
 import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from neuralcol.collision.backends import build_labeler
 from neuralcol.errors import UserInputError
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.config import as_dict
@@ -48,31 +46,21 @@ from neuralcol.utils.config import as_dict
 PARTS = ("latent", "curve", "projection")
 
 
-def _space(cfg: DictConfig):
-    """The data set, its latent space (trained or from the cache, as ``experiments.run`` would, or the file
-    ``diagnose.latent_space``) and its report (``cache_key`` names its caches of labeled samples)."""
-    from neuralcol.data.features import dataset_features
-    from neuralcol.nn.latent_space import LatentSpace
-    from neuralcol.stages.autoencoder import train_or_load_latent_space
+def diagnose_context(cfg: DictConfig):
+    """The run context of ``cfg`` with its latent space: trained or from the cache, as ``experiments.run`` would,
+    or the file ``diagnose.latent_space``."""
+    from neuralcol.pipeline import RunContext
 
-    ds = instantiate(cfg.dataset.source)
-    if OmegaConf.select(cfg, "diagnose.latent_space", default=None):
-        path = Path(str(cfg.diagnose.latent_space))
-        if not path.is_file():
-            raise UserInputError(f"diagnose.latent_space={path}: no such file; give a latent_space.pt of "
-                                 f"{cfg.paths.cache_dir}/autoencoders/<key>/")
-        space = LatentSpace.load(path)
-        if space.rest_vertices.shape[0] != ds.n_vertices:
-            raise UserInputError(f"diagnose.latent_space={path}: {space.rest_vertices.shape[0]} vertices, the "
-                                 f"data set {cfg.dataset.name} has {ds.n_vertices}")
-        return ds, space, {**space.meta, "cache_key": path.parent.name}
-    acap_cfg = OmegaConf.to_container(cfg.acap, resolve=True)
-    norm_cfg = acap_cfg.pop("normalizer")
-    feats = dataset_features(ds, cfg.dataset.reference_index, acap_cfg, norm_cfg,
-                             cache_dir=Path(cfg.paths.cache_dir) / "features")
-    space, report, _ = train_or_load_latent_space(ds, feats, cfg.autoencoder, cfg.dataset.latent,
-                                                  int(cfg.autoencoder_seed), Path(cfg.paths.cache_dir))
-    return ds, space, report
+    ctx = RunContext(cfg)
+    path = OmegaConf.select(cfg, "diagnose.latent_space", default=None)
+    if path:
+        try:
+            ctx.use_latent_space_file(Path(str(path)))
+        except UserInputError as e:
+            raise UserInputError(f"diagnose.latent_space={e}") from e
+    else:
+        ctx.latent_space()
+    return ctx
 
 
 def diagnose_latent(cfg: DictConfig, ds, space, report: dict, oracle) -> dict:
@@ -109,9 +97,10 @@ def diagnose_latent(cfg: DictConfig, ds, space, report: dict, oracle) -> dict:
 
 
 def diagnose_curve(cfg: DictConfig, space, report: dict, oracle) -> dict:
-    from neuralcol.data.uniform_samples import uniform_rows
     from neuralcol.diagnose.curve import learning_curve, needed_size
-    from neuralcol.stages.detector import build_detector, samples_cache_dir, shared_test_set
+    from neuralcol.nn.detector import build_detector
+    from neuralcol.samples.cache import samples_cache_dir, shared_test_set
+    from neuralcol.samples.uniform import uniform_rows
 
     c = as_dict(cfg.diagnose.curve)
     det = as_dict(cfg.detector)
@@ -259,15 +248,11 @@ def run(cfg: DictConfig, out_dir: Path) -> dict:
         raise UserInputError(f"diagnose.parts={parts}: use a non-empty list of {', '.join(PARTS)}")
     results: dict = {"dataset": cfg.dataset.name, "parts": parts}
     if "latent" in parts or "curve" in parts:
-        from neuralcol.active.oracle import LatentOracle
-        from neuralcol.collision.pool import LabelPool
-
-        ds, space, report = _space(cfg)
+        ctx = diagnose_context(cfg)
+        ds, (space, report, _) = ctx.dataset, ctx.latent_space()
         results["latent_space"] = {"cache_key": report["cache_key"], "dim": space.dim, "n_parts": space.n_parts}
-        labeler = build_labeler(cfg.labeling, ds.faces.numpy(), space.rest_vertices.numpy(),
-                                                    partition=space.partition.numpy())
-        with LabelPool(labeler, **OmegaConf.to_container(cfg.labeling.pool)) as pool:
-            oracle = LatentOracle(space, pool)
+        with ctx.pool(ctx.sample_labeler()) as pool:
+            oracle = ctx.oracle(pool)
             if "latent" in parts:
                 results["latent"] = diagnose_latent(cfg, ds, space, report, oracle)
             if "curve" in parts:

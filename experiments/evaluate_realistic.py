@@ -15,13 +15,12 @@ import json
 from pathlib import Path
 
 import yaml
-from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from neuralcol.api import load_run
-from neuralcol.data.features import dataset_features
-from neuralcol.handling.contact_repair import repair_settings
-from neuralcol.stages.handling import alm_settings
+from neuralcol.handler.contact_repair import repair_settings
+from neuralcol.handler.resolve import alm_settings
+from neuralcol.rundir import RunDir
 from neuralcol.stages.realistic import evaluate_realistic, realistic_set
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,7 +44,7 @@ def mesh_detector_config(cfg, overrides: list[str]):
 
 def repair_config(cfg, overrides: list[str]):
     """The run's ``handler.repair`` settings (or the default group's for older runs) with overrides, as
-    :class:`~neuralcol.handling.contact_repair.RepairSettings` (None when disabled)."""
+    :class:`~neuralcol.handler.contact_repair.RepairSettings` (None when disabled)."""
     base = OmegaConf.select(cfg, "handler.repair")
     if base is None:
         base = OmegaConf.create(yaml.safe_load((ROOT / "conf" / "handler" / "default.yaml").read_text())["repair"])
@@ -55,18 +54,12 @@ def repair_config(cfg, overrides: list[str]):
 def run_realistic_set(run, rcfg):
     """A loaded run's data set, ACAP features, label pool, samples cache folder and realistic set (built and
     labeled once, then read from the cache): ``(ds, feats, pool, folder, meshes, pd)``."""
-    from neuralcol.stages.detector import samples_cache_dir
-
-    cfg = run.cfg
-    ds = instantiate(cfg.dataset.source)
-    acap_cfg = OmegaConf.to_container(cfg.acap, resolve=True)
-    norm_cfg = acap_cfg.pop("normalizer")
-    feats = dataset_features(ds, cfg.dataset.reference_index, acap_cfg, norm_cfg,
-                             cache_dir=Path(cfg.paths.cache_dir) / "features")
-    pool = run._label_pool()
-    folder = samples_cache_dir(cfg.paths.cache_dir, run.metrics["autoencoder"]["cache_key"], run._labeler)
+    ctx = run.context()
+    ds, feats = ctx.dataset, ctx.features
+    pool = run.label_pool()
+    folder = ctx.samples_dir(run.labeler)
     meshes, pd, _ = realistic_set(ds.vertices.numpy(), feats.features.numpy(), feats.acap,
-                                  run.space.meta["val_index"], pool, rcfg, folder, float(run._labeler.eps))
+                                  run.space.meta["val_index"], pool, rcfg, folder, float(run.labeler.eps))
     return ds, feats, pool, folder, meshes, pd
 
 
@@ -77,22 +70,21 @@ def evaluate_run(run_dir: Path, overrides: list[str], workers: int | None, train
         rcfg = realistic_config(cfg, overrides)
         ds, feats, pool, folder, meshes, pd = run_realistic_set(run, rcfg)
         mesh_net, mesh_report = None, None
-        if not train_mesh and (run_dir / "mesh_detector.pt").is_file():
-            from neuralcol.stages.mesh_detector import load_mesh_detector
+        if not train_mesh and RunDir(run_dir).mesh_detector.is_file():
+            from neuralcol.nn.mesh_detector import load_mesh_detector
 
-            mesh_net = load_mesh_detector(run_dir / "mesh_detector.pt")
+            mesh_net = load_mesh_detector(RunDir(run_dir).mesh_detector)
         if train_mesh:  # train the mesh-reading detector on this run's D_c (as experiments.run does)
-            from neuralcol.active.oracle import LatentOracle
-            from neuralcol.stages.detector import shared_test_set
+            from neuralcol.samples.cache import shared_test_set
             from neuralcol.stages.mesh_detector import mesh_detector_stage
 
-            test, _, _ = shared_test_set(LatentOracle(run.space, pool), cfg.detector,
+            test, _, _ = shared_test_set(run.context().oracle(pool), cfg.detector,
                                          run.metrics["autoencoder"]["cache_key"], cfg.paths.cache_dir)
             mesh_net, mesh_report = mesh_detector_stage(
                 run.space, ds.vertices.numpy(), feats.features.numpy(), feats.acap, run.space.meta["train_index"],
-                pool, mesh_detector_config(cfg, list(mesh_overrides)), folder, float(run._labeler.eps),
-                run_dir / "dc.h5", int(cfg.seed), run_dir, test=test)
-        metrics, _ = evaluate_realistic(run.space, run.detector, meshes, pd, pool, float(run._labeler.eps), rcfg,
+                pool, mesh_detector_config(cfg, list(mesh_overrides)), folder, float(run.labeler.eps),
+                RunDir(run_dir).dc, int(cfg.seed), run_dir, test=test)
+        metrics, _ = evaluate_realistic(run.space, run.detector, meshes, pd, pool, float(run.labeler.eps), rcfg,
                                         alm_settings(cfg.handler.alm), list(cfg.handler.verify_margins),
                                         int(cfg.handler.batch_size), mesh_net=mesh_net,
                                         repair=repair_config(cfg, list(repair_overrides)))
@@ -102,7 +94,7 @@ def evaluate_run(run_dir: Path, overrides: list[str], workers: int | None, train
 
 
 def run_metrics_line(run_dir: Path) -> str:
-    r = json.loads((run_dir / "metrics.json").read_text())["rounds"][-1]
+    r = json.loads(RunDir(run_dir).metrics.read_text())["rounds"][-1]
     return f"accuracy {r['accuracy']:.4f} FNR {r['fnr']:.4f}"
 
 

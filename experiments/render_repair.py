@@ -16,7 +16,7 @@ import numpy as np
 
 from experiments.evaluate_realistic import realistic_config, run_realistic_set
 from neuralcol.api import load_run
-from neuralcol.handling.contact_repair import outward_sign, repair_contacts, repair_settings
+from neuralcol.handler.contact_repair import outward_sign, repair_contacts, repair_settings
 from neuralcol.metrics.plots import depth_colors, render_mesh_png
 from neuralcol.stages.realistic import clear_mask
 
@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
     with load_run(run_dir, workers=0, progress=False) as run:
         _, _, _, _, meshes, pd = run_realistic_set(run, realistic_config(run.cfg, []))
-        lab = run._labeler
+        lab = run.labeler
         colliding = np.flatnonzero(clear_mask(pd, lab.eps, 10) & (np.nan_to_num(pd) > 0))
         s = run._repair_settings(True) or repair_settings({})
         diag = run.diagonal

@@ -22,28 +22,28 @@ import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from neuralcol.active.oracle import LatentOracle
-from neuralcol.collision.backends import build_labeler
-from neuralcol.collision.pool import LabelPool
-from neuralcol.data.features import dataset_features
 from neuralcol.geometry.mesh_io import write_meshes
-from neuralcol.handling.contact_repair import repair_settings
+from neuralcol.handler.contact_repair import repair_settings
+from neuralcol.handler.resolve import alm_settings
 from neuralcol.metrics.plots import partition_colors, render_mesh_png
-from neuralcol.metrics.reconstruction import relative_vertex_error
+from neuralcol.metrics.tensorboard import stage_logger
+from neuralcol.nn.detector import load_detector
+from neuralcol.pipeline import RunContext
+from neuralcol.rundir import RunDir
+from neuralcol.samples.cache import shared_test_set
 from neuralcol.stages.autoencoder import train_or_load_latent_space
-from neuralcol.stages.detector import load_detector, samples_cache_dir, shared_test_set, train_detector
-from neuralcol.stages.handling import alm_settings, evaluate_handler, export_handling
+from neuralcol.stages.data import acap_round_trip, dataset_labels
+from neuralcol.stages.detector import train_detector
+from neuralcol.stages.handler import evaluate_handler, export_handling
 from neuralcol.stages.mesh_detector import mesh_detector_stage
 from neuralcol.stages.model_size import search_model_size, validate_model_size
 from neuralcol.stages.realistic import evaluate_realistic, realistic_set
+from neuralcol.stages.validate import validate_run_config
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.resume import RunDirLock, find_interrupted_run
 from neuralcol.utils.seeding import seed_everything
-from neuralcol.utils.tensorboard import stage_logger
-from neuralcol.utils.validate import validate_run_config
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
@@ -51,43 +51,32 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     validate_run_config(cfg)  # every settings error at once, before any work
     validate_model_size(cfg)
     seed_everything(cfg.seed if cfg.seed is not None else None)
+    ctx = RunContext(cfg, run_dir)
+    rd = ctx.run_dir
     t0 = time.perf_counter()
-    ds = instantiate(cfg.dataset.source)
+    ds = ctx.dataset
     t_load = time.perf_counter() - t0
-    acap_cfg = OmegaConf.to_container(cfg.acap, resolve=True)
-    norm_cfg = acap_cfg.pop("normalizer")
     t0 = time.perf_counter()
-    feats = dataset_features(ds, cfg.dataset.reference_index, acap_cfg, norm_cfg,
-                             cache_dir=Path(cfg.paths.cache_dir) / "features")
+    feats = ctx.features
     t_encode = time.perf_counter() - t0
     size_doc = None
     if cfg.get("model_size") is not None and cfg.model_size.mode == "auto":  # choose the sizes first (issue 17)
         cfg, size_doc = search_model_size(cfg, run_dir, ds, feats, run, train_or_load_latent_space)
         seed_everything(cfg.seed if cfg.seed is not None else None)  # as if the sizes had been given
-    t0 = time.perf_counter()
-    with torch.no_grad():
-        recon = feats.acap.decode(feats.features.to(torch.float64)).to(ds.vertices.dtype)
-    t_decode = time.perf_counter() - t0
-    err = relative_vertex_error(recon, ds.vertices)
+        ctx = RunContext(cfg, run_dir)
+        ctx.dataset, ctx.features = ds, feats  # (cached_property: the same data set and features)
+    recon, acap_metrics = acap_round_trip(ds, feats)
+    faces, rest = ctx.faces, ctx.rest
     # exact labels of the data set's own meshes (the paper assumes they are (nearly) collision-free)
-    faces = ds.faces.numpy()
-    rest = ds.vertices[cfg.dataset.reference_index].numpy().astype("float64")
-    labeler = build_labeler(cfg.labeling, faces, rest)
-    t0 = time.perf_counter()
-    with LabelPool(labeler, **OmegaConf.to_container(cfg.labeling.pool), desc="labeling data set") as pool:
-        # a mesh the labeler fails on is reported (index, reason) and left out of these statistics
-        report = pool.label_report(ds.vertices.numpy().astype("float64"))
-    labels = report.labels
-    t_label = time.perf_counter() - t0
+    with ctx.pool(ctx.labeler(), desc="labeling data set") as pool:
+        label_metrics = dataset_labels(ds, pool)
     # bilevel autoencoder (trained, or loaded from the cache) and its latent space; TensorBoard: one run per
-    # stage under <run dir>/tensorboard/ (neuralcol/utils/tensorboard.py)
+    # stage under <run dir>/tensorboard/ (neuralcol/metrics/tensorboard.py)
     t0 = time.perf_counter()
-    space, ae_report, ae_cached = train_or_load_latent_space(
-        ds, feats, cfg.autoencoder, cfg.dataset.latent, int(cfg.autoencoder_seed), Path(cfg.paths.cache_dir),
-        lambda stage: stage_logger(run_dir, stage))
+    space, ae_report, ae_cached = ctx.latent_space(lambda stage: stage_logger(run_dir, stage))
     t_ae = time.perf_counter() - t0
     part = space.partition.numpy()
-    render_mesh_png(run_dir / "subdomains.png", rest, faces, partition_colors(part),
+    render_mesh_png(rd.subdomains_png, rest, faces, partition_colors(part),
                     title=f"{cfg.dataset.name}: {space.n_parts} sub-domains")
     colors = (partition_colors(part)[:, :3] * 255).astype("uint8")
     data_logger = stage_logger(run_dir, "data")
@@ -96,11 +85,11 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     data_logger.finalize("success")
     logger = stage_logger(run_dir, f"detector_{cfg.method.name}")
     # the neural collision detector, trained by the configured method on labeled decoded samples
-    sample_labeler = build_labeler(cfg.labeling, faces, rest, partition=part)
+    sample_labeler = ctx.sample_labeler()
     t0 = time.perf_counter()
     settings = alm_settings(cfg.handler.alm)
-    with LabelPool(sample_labeler, **OmegaConf.to_container(cfg.labeling.pool)) as pool:
-        oracle = LatentOracle(space, pool)
+    with ctx.pool(sample_labeler) as pool:
+        oracle = ctx.oracle(pool)
         # inputs of the collision handler: the first colliding rows of the shared test set
         test, _, _ = shared_test_set(oracle, cfg.detector, ae_report["cache_key"], cfg.paths.cache_dir)
         pick = np.flatnonzero(test.pd > 0)[: int(cfg.handler.n_inputs)]
@@ -117,16 +106,16 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         # the collision handler with the final detector (handler.n_inputs = 0 skips it)
         handling_metrics, arrays = None, None
         if len(z_user):
-            net, _ = load_detector(run_dir / "detector.pt")
+            net, _ = load_detector(rd.detector)
             handling_metrics, arrays = evaluate_handler(net, oracle, z_user, pd_user, settings,
                                                         int(cfg.handler.batch_size), list(cfg.handler.verify_margins))
         # the detector that reads the mesh (issue 27): decoded D_c + realistic training meshes
-        samples_dir = samples_cache_dir(cfg.paths.cache_dir, ae_report["cache_key"], sample_labeler)
+        samples_dir = ctx.samples_dir(sample_labeler)
         mesh_net, mesh_report = None, None
         if cfg.mesh_detector.enabled:
             mesh_net, mesh_report = mesh_detector_stage(
                 space, ds.vertices.numpy(), feats.features.numpy(), feats.acap, ae_report["train_index"], pool,
-                cfg.mesh_detector, samples_dir, float(sample_labeler.eps), run_dir / "dc.h5", int(cfg.seed),
+                cfg.mesh_detector, samples_dir, float(sample_labeler.eps), rd.dc, int(cfg.seed),
                 run_dir, test=test, logger=stage_logger(run_dir, "mesh_detector"))
         # the realistic set (issue 27): meshes nobody trained on, labeled exactly, next to U(Z)
         realistic_metrics = None
@@ -135,17 +124,17 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
             meshes, pd_real, real_cached = realistic_set(
                 ds.vertices.numpy(), feats.features.numpy(), feats.acap, ae_report["val_index"], pool,
                 cfg.realistic, samples_dir, float(sample_labeler.eps))
-            net, _ = load_detector(run_dir / "detector.pt")
+            net, _ = load_detector(rd.detector)
             realistic_metrics, real_arrays = evaluate_realistic(
                 space, net, meshes, pd_real, pool, float(sample_labeler.eps), cfg.realistic, settings,
                 list(cfg.handler.verify_margins), int(cfg.handler.batch_size), mesh_net=mesh_net,
                 repair=repair_settings(OmegaConf.to_container(cfg.handler.repair, resolve=True)
                                        if OmegaConf.select(cfg, "handler.repair") is not None else None))
             realistic_metrics.update({"from_cache": real_cached, "stage_seconds": time.perf_counter() - t_r})
-            np.savez_compressed(run_dir / "realistic_predictions.npz", **real_arrays)
+            np.savez_compressed(rd.realistic_predictions, **real_arrays)
             log_realistic(logger, realistic_metrics, det["rounds"][-1]["dataset_size"])
     if handling_metrics is not None:
-        export_handling(run_dir / "handling", arrays, space, sample_labeler, int(cfg.handler.n_examples),
+        export_handling(rd.handling, arrays, space, sample_labeler, int(cfg.handler.n_examples),
                         title=f"{cfg.dataset.name}, {cfg.method.name}", pd_sub_before=pd_sub_user)
         handling_logger = stage_logger(run_dir, "handling")
         for key in ("success_rate", "resolved_rate", "mean_pd_reduction", "mean_embedding_diff"):
@@ -155,18 +144,15 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     logger.finalize("success")
     k = min(int(cfg.n_example_meshes), len(ds))
     if k > 0:
-        write_meshes(run_dir / "examples" / "input", ds.vertices[:k], ds.faces, ds.names[:k])
-        write_meshes(run_dir / "examples" / "acap_reconstruction", recon[:k], ds.faces, ds.names[:k])
+        write_meshes(rd.examples / "input", ds.vertices[:k], ds.faces, ds.names[:k])
+        write_meshes(rd.examples / "acap_reconstruction", recon[:k], ds.faces, ds.names[:k])
     metrics = {
         "dataset": {"name": cfg.dataset.name, "source": ds.source, "n_meshes": len(ds),
                     "n_vertices": ds.n_vertices, "n_faces": int(ds.faces.shape[0]), "load_seconds": t_load},
-        "acap": {"mean_rel_error": float(err.mean.mean()), "worst_mesh_mean_rel_error": float(err.mean.max()),
-                 "max_rel_error": float(err.max.max()), "features_seconds": t_encode,
-                 "features_from_cache": feats.from_cache, "decode_ms_per_mesh": 1e3 * t_decode / len(ds)},
-        "dataset_labels": {"n_colliding": int(labels.collides.sum()), "colliding": [
-            ds.names[i] for i in np.nonzero(labels.collides)[0]], "pd_min": float(np.nanmin(labels.pd)),
-            "pd_max": float(np.nanmax(labels.pd)), "seconds": t_label,
-            "failed": [{"mesh": ds.names[f.index], "reason": f.reason} for f in report.failures]},
+        "acap": {**{k_: v for k_, v in acap_metrics.items() if k_ != "decode_ms_per_mesh"},
+                 "features_seconds": t_encode, "features_from_cache": feats.from_cache,
+                 "decode_ms_per_mesh": acap_metrics["decode_ms_per_mesh"]},
+        "dataset_labels": label_metrics,
         "autoencoder": {**{k_: v for k_, v in ae_report.items() if k_ not in ("train_index", "val_index")},
                         "from_cache": ae_cached, "stage_seconds": t_ae},
         "latent": {"dim": space.dim, "n_parts": space.n_parts,
@@ -180,7 +166,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     if size_doc is not None:
         metrics["model_size"] = {k: size_doc[k] for k in ("chosen", "chosen_accuracy", "best_accuracy", "budget",
                                                             "default", "rule")}
-    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    rd.metrics.write_text(json.dumps(metrics, indent=2))
     return metrics
 
 
@@ -289,7 +275,7 @@ def main(cfg: DictConfig) -> None:
         if earlier is not None:
             print(f"resuming the interrupted run in {earlier} (same overrides, unfinished); resume=false starts "
                   "afresh", flush=True)
-            (run_dir / "resumed_in.txt").write_text(f"{earlier}\n")
+            RunDir(run_dir).resumed_in.write_text(f"{earlier}\n")
             run_dir = earlier
     with RunDirLock(run_dir):
         metrics = run(cfg, run_dir)

@@ -7,7 +7,7 @@ Three parts (``scale.parts``), each resumable:
 
 * ``label``: grows the seed's pool of labeled uniform samples to ``max(scale.sizes)`` rows and the shared
   test set to ``scale.test_size`` rows, ``scale.label_piece`` rows at a time. Both are the caches that
-  ``experiments.run`` and ``experiments.diagnose`` use (:mod:`neuralcol.data.uniform_samples`): a row is a
+  ``experiments.run`` and ``experiments.diagnose`` use (:mod:`neuralcol.samples.uniform`): a row is a
   pure function of (seed, index), rows are committed every 2048, so an interrupted or time-limited run loses
   at most one commit and a rerun goes on where it stopped. Each piece's wall time and labels per second are
   recorded in ``scale_curve.json``.
@@ -49,13 +49,13 @@ def load_state(out: Path) -> dict:
 
 
 def save_state(out: Path, state: dict) -> None:
-    from neuralcol.active.rounds import write_json_atomic
+    from neuralcol.utils.files import write_json_atomic
 
     write_json_atomic(out / STATE, state)
 
 
 def _stores(cfg: DictConfig, oracle, key: str) -> tuple[Path, Path, int]:
-    from neuralcol.stages.detector import samples_cache_dir
+    from neuralcol.samples.cache import samples_cache_dir
 
     shared = samples_cache_dir(cfg.paths.cache_dir, key, oracle.pool.labeler)
     seed = int(cfg.scale.pool_seed)
@@ -73,7 +73,7 @@ def _rows_in(path: Path) -> int:
 
 def label_part(cfg: DictConfig, oracle, key: str, state: dict, out: Path) -> None:
     """Grow the pool and the test set piece by piece (the larger deficit first), recording each piece."""
-    from neuralcol.data.uniform_samples import uniform_rows
+    from neuralcol.samples.uniform import uniform_rows
 
     pool_path, test_path, seed = _stores(cfg, oracle, key)
     want = {"pool": (pool_path, max(int(s) for s in cfg.scale.sizes), seed),
@@ -106,9 +106,9 @@ def label_part(cfg: DictConfig, oracle, key: str, state: dict, out: Path) -> Non
 
 
 def train_part(cfg: DictConfig, space, oracle, key: str, state: dict, out: Path) -> None:
-    from neuralcol.data.uniform_samples import uniform_rows
     from neuralcol.diagnose.curve import fit_detector, take_rows, test_metrics
-    from neuralcol.stages.detector import build_detector
+    from neuralcol.nn.detector import build_detector
+    from neuralcol.samples.uniform import uniform_rows
 
     det = as_dict(cfg.detector)
     pool_path, test_path, seed = _stores(cfg, oracle, key)
@@ -229,20 +229,14 @@ def run(cfg: DictConfig) -> dict:
     state = load_state(out)
     state["dataset"] = cfg.dataset.name
     if "label" in parts or "train" in parts:
-        from omegaconf import OmegaConf
+        from experiments.diagnose import diagnose_context
 
-        from experiments.diagnose import _space
-        from neuralcol.active.oracle import LatentOracle
-        from neuralcol.collision.backends import build_labeler
-        from neuralcol.collision.pool import LabelPool
-
-        ds, space, report = _space(cfg)
+        ctx = diagnose_context(cfg)
+        space, report, _ = ctx.latent_space()
         key = report["cache_key"]
         state["latent_space"] = key
-        labeler = build_labeler(cfg.labeling, ds.faces.numpy(), space.rest_vertices.numpy(),
-                                partition=space.partition.numpy())
-        with LabelPool(labeler, **OmegaConf.to_container(cfg.labeling.pool)) as pool:
-            oracle = LatentOracle(space, pool)
+        with ctx.pool(ctx.sample_labeler()) as pool:
+            oracle = ctx.oracle(pool)
             if "label" in parts:
                 label_part(cfg, oracle, key, state, out)
             if "train" in parts:

@@ -2,7 +2,7 @@
 
     python -m experiments.tb_plot LOGDIR [--out FILE] [--tags PREFIX...]
 
-LOGDIR is a run's ``tensorboard/`` folder (one sub-folder per stage, neuralcol/utils/tensorboard.py) or one stage
+LOGDIR is a run's ``tensorboard/`` folder (one sub-folder per stage, neuralcol/metrics/tensorboard.py) or one stage
 folder. One panel per (stage, tag) whose tag starts with one of ``--tags`` (default: every tag but Lightning's
 ``epoch``), values against the step the tag was logged at: the epoch for the autoencoder's losses, the training
 step for the detector's ``train/*`` and ``val/*``, |D_c| for ``test/*``, ``projection/*`` and ``handling/*``.

@@ -28,6 +28,7 @@ from omegaconf import DictConfig, OmegaConf
 from neuralcol.errors import UserInputError
 from neuralcol.nn.detector import CollisionDetector, smooth_max
 from neuralcol.nn.latent_space import LatentSpace
+from neuralcol.rundir import CacheDir, RunDir
 
 OBJECTIVES = ("latent", "cartesian")
 
@@ -94,14 +95,15 @@ def check_run_dir(run_dir: Path) -> tuple[DictConfig, dict]:
     if not run_dir.is_dir():
         raise UserInputError(f"{run_dir}: no such directory; give the output directory of a finished "
                              "`python -m experiments.run`")
-    cfg_path = run_dir / ".hydra" / "config.yaml"
+    rd = RunDir(run_dir)
+    cfg_path = rd.config
     if not cfg_path.is_file():
         raise UserInputError(f"{cfg_path}: missing; {run_dir} is not the output directory of "
                              "`python -m experiments.run` (such a directory holds .hydra/, detector.pt and "
                              "metrics.json)")
-    det_path, metrics_path = run_dir / "detector.pt", run_dir / "metrics.json"
-    if not metrics_path.is_file() and (run_dir / "resumed_in.txt").is_file():
-        raise UserInputError(f"{run_dir}: this run was resumed in {(run_dir / 'resumed_in.txt').read_text().strip()}"
+    det_path, metrics_path = rd.detector, rd.metrics
+    if not metrics_path.is_file() and rd.resumed_in.is_file():
+        raise UserInputError(f"{run_dir}: this run was resumed in {rd.resumed_in.read_text().strip()}"
                              "; load that directory")
     for p, when in ((det_path, "when the detector's training ends"), (metrics_path, "when the run ends")):
         if not p.is_file():
@@ -134,23 +136,24 @@ def load_run(run_dir: str | Path, device: str | torch.device = "cpu", workers: i
     Raises:
         UserInputError: not a run directory, an unfinished run, or its latent space is not in the cache.
     """
-    from neuralcol.stages.detector import load_detector
+    from neuralcol.nn.detector import load_detector
 
     run_dir = Path(run_dir)
     cfg, metrics = check_run_dir(run_dir)
     key = metrics["autoencoder"].get("cache_key")
-    space_path = Path(cfg.paths.cache_dir) / "autoencoders" / str(key) / "latent_space.pt"
+    space_path = CacheDir(cfg.paths.cache_dir).latent_space(str(key))
     if key is None or not space_path.is_file():
         raise UserInputError(f"{space_path}: the run's latent space is not in the cache (paths.cache_dir="
                              f"{cfg.paths.cache_dir}); run the same command again to rebuild it")
-    net, blob = load_detector(run_dir / "detector.pt")
+    rd = RunDir(run_dir)
+    net, blob = load_detector(rd.detector)
     pd_unit = float(blob.get("pd_unit") or metrics["detector"]["pd_unit"])
     temperature = float(OmegaConf.select(cfg, "detector.loss.temperature", default=0.1))
     mesh_net = None
-    if (run_dir / "mesh_detector.pt").is_file():  # the detector that reads the mesh (issue 27)
-        from neuralcol.stages.mesh_detector import load_mesh_detector
+    if rd.mesh_detector.is_file():  # the detector that reads the mesh (issue 27)
+        from neuralcol.nn.mesh_detector import load_mesh_detector
 
-        mesh_net = load_mesh_detector(run_dir / "mesh_detector.pt")
+        mesh_net = load_mesh_detector(rd.mesh_detector)
     return TrainedRun(run_dir, cfg, metrics, LatentSpace.load(space_path), net, pd_unit, temperature,
                       device=device, workers=workers, progress=progress, mesh_detector=mesh_net)
 
@@ -184,7 +187,7 @@ class TrainedRun:
         self._pool_cfg = pool_cfg
         self._pool = None
         self._fast: dict = {}  # compiled copies of the detector by dtype (detect(..., fast=...))
-        self._labeler = None
+        self._exact = None
 
     # ------------------------------------------------------------------ facts
     @property
@@ -289,7 +292,7 @@ class TrainedRun:
             return Detection(empty, empty, empty, z.new_zeros(0, self.space.n_parts), z.new_zeros(0, dtype=bool))
         det = Detection(*(torch.cat(t) for t in zip(*(p[:4] for p in parts))), self.space.outside_box(z))
         if use_mesh:
-            from neuralcol.stages.mesh_detector import mesh_logits
+            from neuralcol.nn.mesh_detector import mesh_logits
 
             meshes = self._vertices(x).numpy() if is_mesh else self.decode(z).cpu().numpy()
             logit = torch.as_tensor(mesh_logits(self.mesh_detector, meshes), dtype=torch.float32,
@@ -309,7 +312,7 @@ class TrainedRun:
 
     def _repair_settings(self, repair: bool | None):
         """The run's ``handler.repair`` (off for runs older than it) with ``repair`` forcing it on or off."""
-        from neuralcol.handling.contact_repair import repair_settings
+        from neuralcol.handler.contact_repair import repair_settings
 
         node = OmegaConf.select(self.cfg, "handler.repair")
         c = dict(OmegaConf.to_container(node, resolve=True)) if node is not None else {"enabled": False}
@@ -321,16 +324,33 @@ class TrainedRun:
             raise UserInputError(f"{self.run_dir}/.hydra/config.yaml: {e}") from e
 
     # ------------------------------------------------------------------ exact labels
-    def _label_pool(self):
+    def label_pool(self):
+        """The run's label pool (its exact labeler on worker processes; opened on first use, closed by
+        :meth:`close`)."""
         if self._pool is None:
             from neuralcol.collision.backends import build_labeler
             from neuralcol.collision.pool import LabelPool
 
             space = self.space
-            self._labeler = build_labeler(self.cfg.labeling, self.faces, space.rest_vertices.cpu().numpy(),
+            self._exact = build_labeler(self.cfg.labeling, self.faces, space.rest_vertices.cpu().numpy(),
                                           partition=space.partition.cpu().numpy())
-            self._pool = LabelPool(self._labeler, **self._pool_cfg, desc="labeling").__enter__()
+            self._pool = LabelPool(self._exact, **self._pool_cfg, desc="labeling").__enter__()
         return self._pool
+
+    @property
+    def labeler(self):
+        """The run's exact labeler (``labeling``; the one :meth:`label_pool` runs)."""
+        self.label_pool()
+        return self._exact
+
+    def context(self):
+        """A :class:`~neuralcol.pipeline.RunContext` of this run's config, with this run's latent space (its data
+        set and features are loaded on first use)."""
+        from neuralcol.pipeline import RunContext
+
+        ctx = RunContext(self.cfg, self.run_dir)
+        ctx.use_latent_space(self.space, {**self.space.meta, "cache_key": self.metrics["autoencoder"]["cache_key"]})
+        return ctx
 
     def label(self, vertices):
         """Exact labels of meshes (B, V, 3) or (V, 3) through the run's label pool.
@@ -342,7 +362,7 @@ class TrainedRun:
         Raises:
             LabelingError: some meshes could not be labelled (it lists them).
         """
-        return self._label_pool().label(self._vertices(vertices).numpy())
+        return self.label_pool().label(self._vertices(vertices).numpy())
 
     def _pd(self, vertices: torch.Tensor) -> np.ndarray:
         """Exact PD (B,) of meshes; NaN where the labeler failed (never raises for a mesh)."""
@@ -350,7 +370,7 @@ class TrainedRun:
             return np.zeros(0)
         v = vertices.detach().to("cpu", torch.float64).numpy() if torch.is_tensor(vertices) else \
             np.asarray(vertices, np.float64)
-        report = self._label_pool().label_report(v)
+        report = self.label_pool().label_report(v)
         return np.where(report.ok, report.labels.pd, np.nan)
 
     def close(self) -> None:
@@ -374,7 +394,7 @@ class TrainedRun:
         The augmented-Lagrangian handler (docs/handler.md) moves each input's latent code to the nearest code
         the detector calls collision-free (the run's ``handler`` settings). For a **mesh**, the correction that
         move implies (the handled code decoded minus the input's own round trip) is added to the input mesh
-        (:func:`~neuralcol.stages.handling.transfer_displacement`): the result is in the input's frame and
+        (:func:`~neuralcol.stages.handler.transfer_displacement`): the result is in the input's frame and
         keeps its detail, and the exact labeler judges that returned mesh. For a **code**, the result is the
         handled code decoded. With ``verify`` the results the exact labeler still finds self-penetrating are
         handled again with the larger margins (``margins``, default the run's ``handler.verify_margins``) and
@@ -399,8 +419,8 @@ class TrainedRun:
         Returns:
             :class:`Resolved`.
         """
-        from neuralcol.handling.objectives import CartesianObjective, LatentObjective
-        from neuralcol.stages.handling import (
+        from neuralcol.handler.objectives import CartesianObjective, LatentObjective
+        from neuralcol.handler.resolve import (
             ANCHORS,
             alm_settings,
             displacement_stats,
@@ -443,11 +463,11 @@ class TrainedRun:
         if v_user is not None:
             rep = self._repair_settings(repair) if verify else None
             if rep is not None:
-                self._label_pool()  # the repair asks the run's labeler in this process
+                self.label_pool()  # the repair asks the run's labeler in this process
             res = resolve_meshes(self.detector, self.space, v_user, self._pd, settings, margins, batch,
                                  objective=target, anchor=anchor, z_user=z_user,
                                  mesh_net=self.mesh_detector if constraint == "mesh" else None,
-                                 repair=rep, labeler=self._labeler if rep is not None else None)
+                                 repair=rep, labeler=self._exact if rep is not None else None)
             used_margins = np.append(used_margins, np.nan)
             moved = displacement_stats(v_user.numpy(), res.vertices, diag)
             return Resolved(vertices=torch.as_tensor(res.vertices, dtype=torch.float64, device=self.device),

@@ -15,13 +15,14 @@ import numpy as np
 import pytest
 import torch
 
-from neuralcol.active.oracle import OracleLabels
 from neuralcol.active.stopping import accuracy_elbow, should_stop
 from neuralcol.collision.labeler import split_subsets
-from neuralcol.data.collision_store import CollisionStore
-from neuralcol.data.uniform_samples import BLOCK, labeled_uniform_rows, uniform_codes
 from neuralcol.metrics.detection import detection_metrics
-from neuralcol.stages.detector import load_detector, train_detector
+from neuralcol.nn.detector import load_detector
+from neuralcol.samples.oracle import OracleLabels
+from neuralcol.samples.store import CollisionStore
+from neuralcol.samples.uniform import BLOCK, labeled_uniform_rows, uniform_codes
+from neuralcol.stages.detector import train_detector
 
 K, L2 = 4, 1  # sub-domains, level-2 size: D = 8
 D = K * (1 + L2)
@@ -183,29 +184,6 @@ def test_projected_samples_are_closer_to_the_true_boundary_than_uniform_ones(tmp
     dist = np.abs(RADIUS - np.linalg.norm(rows.z.astype(np.float64), axis=1))
     proj, uni = dist[rows.origin == 1], dist[rows.origin == 0]
     assert np.median(proj) < 0.5 * np.median(uni)
-
-
-def test_boundary_search_keeps_the_round_size_and_lands_on_the_sphere(tmp_path):
-    """method.refine_steps: D_c still grows by n_aug per round; of 50 projected labels per round, 50 // 5 = 10
-    chains of 4 search steps (40 rows, origin 2) start from 10 of the 10 + 0 = 10 picks; their last points lie on
-    the sphere to within eps, which the picks themselves do not."""
-    oracle = BallOracle()
-    det = _det_cfg(max_rounds=2)
-    method = {**_method("active", det), "start": "uncertain", "project": False, "refine_steps": 4}
-    out = train_detector(oracle.space, oracle, det, method, "ball", seed=0, cache_dir=tmp_path / "cache",
-                         run_dir=tmp_path / "run")
-    assert [r["dataset_size"] for r in out["rounds"]] == [200, 300, 400]
-    with CollisionStore(tmp_path / "run" / "dc.h5", D, K) as store:
-        rows = store.read()
-    for r in (1, 2):
-        origin = rows.origin[rows.round == r]
-        assert np.bincount(origin, minlength=3).tolist() == [50, 10, 40]
-    info = out["rounds"][0]["next_round_acquisition"]
-    assert info["n_refined_chains"] == 10 and info["refine_steps"] == 4 and info["n_projected"] == 50
-    q = info["projection"]
-    assert q["refined"]["n"] == 10 and q["refined_all"]["n"] == 40
-    assert q["refined"]["within_eps"] == 1.0 and q["within_eps"] < 0.5  # the picks alone are not on the sphere
-    assert out["rounds"][-1]["n_searched_total"] == 80
 
 
 def test_baselines_train_on_the_same_uniform_samples_at_equal_sizes(tmp_path):

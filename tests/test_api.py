@@ -83,7 +83,7 @@ def test_detect_encode_decode_label(trained):
 def test_detect_reads_the_mesh(trained):
     """inputs='mesh' (or 'auto' on meshes) judges a mesh with the detector that reads it; the default and codes
     under 'auto' use the latent detector; pd always comes from the latent detector."""
-    from neuralcol.stages.mesh_detector import mesh_logits
+    from neuralcol.nn.mesh_detector import mesh_logits
 
     assert trained.mesh_detector is not None
     z = _codes(trained, 5, 2)
@@ -134,7 +134,7 @@ def test_resolve_latent_and_cartesian(trained):
     np.testing.assert_array_equal(res.pd_after[finite], trained.label(res.vertices[finite].double()).pd)
     assert set(res.margin) <= {3.0, 4.0}
     # a mesh comes back as the user's mesh, corrected: input + (D(Z) - D(Z_user)), median shift removed
-    from neuralcol.stages.handling import transfer_displacement
+    from neuralcol.handler.resolve import transfer_displacement
 
     torch.testing.assert_close(res.decoded, trained.decode(res.codes))
     expect = transfer_displacement(verts.double(), trained.decode(res.codes_before).double(), res.decoded.double())
@@ -147,7 +147,7 @@ def test_resolve_latent_and_cartesian(trained):
     # detector-guided: the handler lowers the detector's logit (this tiny detector cannot reach -margin)
     assert (trained.detect(res.codes[keep]).logit < trained.detect(res.codes_before[keep]).logit).all()
     # the mesh detector as the constraint, on the mesh that would be returned (through the decoder)
-    from neuralcol.stages.mesh_detector import mesh_logits
+    from neuralcol.nn.mesh_detector import mesh_logits
 
     by_mesh = trained.resolve(verts[:2], verify=False, constraint="mesh")
     moved = ~(by_mesh.codes == by_mesh.codes_before).all(-1)
@@ -208,7 +208,7 @@ def test_resolve_repair_first(trained, monkeypatch):
     """handler.repair.first: colliding inputs are repaired directly, and that mesh is kept wherever it is free."""
     from omegaconf import OmegaConf
 
-    from neuralcol.handling.contact_repair import RepairSettings, outward_sign, repair_meshes
+    from neuralcol.handler.contact_repair import RepairSettings, outward_sign, repair_meshes
 
     z = _codes(trained, 200, 7)
     verts = trained.decode(z)
@@ -219,7 +219,7 @@ def test_resolve_repair_first(trained, monkeypatch):
     res = trained.resolve(verts, margins=[4.0])
     rest = trained.space.rest_vertices.numpy()
     s = RepairSettings(**{k: v for k, v in OmegaConf.to_container(cfg.handler.repair).items()})
-    direct, _, _ = repair_meshes(verts.numpy(), trained.faces, trained._labeler, s, trained._labeler.eps,
+    direct, _, _ = repair_meshes(verts.numpy(), trained.faces, trained.labeler, s, trained.labeler.eps,
                                  trained.diagonal, outward_sign(trained.faces, rest))
     free = trained.label(direct).pd <= 0
     assert free.any()

@@ -3,7 +3,7 @@
 import torch
 from torch.utils.data import DataLoader, SequentialSampler, TensorDataset
 
-from neuralcol.data.collision_datamodule import EpochShuffle, batched_loader
+from neuralcol.samples.datamodule import EpochShuffle, batched_loader
 
 
 def test_batched_loader_gives_the_row_by_row_batches():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neuralcol.data.collision_store import CollisionStore, StoreCorruptedError
+from neuralcol.samples.store import CollisionStore, StoreCorruptedError
 
 
 def _rows(rng, b, d=6, k=2):

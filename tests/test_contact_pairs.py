@@ -108,8 +108,7 @@ def test_select_pairs_max_per_vertex_spreads_the_pairs():
 
 
 def test_mesh_detector_saves_and_loads_without_pickles(tmp_path):
-    from neuralcol.nn.mesh_detector import MeshDetector
-    from neuralcol.stages.mesh_detector import load_mesh_detector, mesh_logits, save_mesh_detector
+    from neuralcol.nn.mesh_detector import MeshDetector, load_mesh_detector, mesh_logits, save_mesh_detector
 
     v, f = two_cubes(0.1)
     i, j = facing_pair(v)

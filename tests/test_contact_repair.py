@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from neuralcol.collision.labeler import ExactLabeler
-from neuralcol.handling.contact_repair import (
+from neuralcol.handler.contact_repair import (
     RepairSettings,
     contact_push,
     diffusion_operator,

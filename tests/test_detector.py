@@ -151,7 +151,7 @@ def test_decoder_features_feed_each_subdomain_and_keep_gradients():
 
 
 def test_detector_with_features_round_trips_through_save_and_load(tmp_path):
-    from neuralcol.stages.detector import load_detector, save_detector
+    from neuralcol.nn.detector import load_detector, save_detector
 
     torch.manual_seed(1)
     lo, hi = -torch.rand(9) * 100 - 1, torch.rand(9) * 100 + 1

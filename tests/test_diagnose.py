@@ -11,12 +11,12 @@ import torch
 from test_active import BallOracle, D, K, _train
 
 from neuralcol.active.rounds import Schedule
-from neuralcol.data.collision_datamodule import detector_targets
-from neuralcol.data.collision_store import CollisionRows
 from neuralcol.diagnose.curve import epoch_lr, learning_curve, needed_size, take_rows
 from neuralcol.diagnose.latent import decoder_report, label_roughness, plausibility_report, reconstruction_report
 from neuralcol.metrics.projection import boundary_shares, projection_quality
 from neuralcol.nn.detector import CollisionDetector
+from neuralcol.samples.datamodule import detector_targets
+from neuralcol.samples.store import CollisionRows
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -240,7 +240,7 @@ def test_uncertain_start_selects_the_codes_nearest_the_level_set(tmp_path):
     from types import SimpleNamespace
 
     from neuralcol.active.acquisition import ProjectedAcquisition
-    from neuralcol.data.collision_store import CollisionStore
+    from neuralcol.samples.store import CollisionStore
 
     class BallLogit(torch.nn.Module):
         def __init__(self):

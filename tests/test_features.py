@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from neuralcol.data.datasets import MeshDataset
-from neuralcol.data.features import FeatureNormalizer, dataset_features
+from neuralcol.data.features import dataset_features
+from neuralcol.nn.normalizer import FeatureNormalizer
 
 
 def test_normalizer_round_trip_and_range():

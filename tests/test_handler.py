@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from neuralcol.handling.alm import ALMSettings, alm_resolve
-from neuralcol.handling.objectives import CartesianObjective, LatentObjective
+from neuralcol.handler.alm import ALMSettings, alm_resolve
+from neuralcol.handler.objectives import CartesianObjective, LatentObjective
 
 D = 6
 LO, HI = -3.0 * torch.ones(D, dtype=torch.float64), 3.0 * torch.ones(D, dtype=torch.float64)
@@ -111,7 +111,7 @@ def test_cartesian_objective_gradient_matches_finite_differences(tube_space):
 
 
 def test_batched_lbfgs_solves_independent_badly_scaled_problems():
-    from neuralcol.handling.lbfgs import batched_lbfgs
+    from neuralcol.handler.lbfgs import batched_lbfgs
 
     # problem b: scaled Rosenbrock s_b * [(1 - x0)^2 + 100 (x1 - x0^2)^2]; minimum (1, 1) for every scale
     scales = torch.tensor([1e-2, 1.0, 1e3, 1e5])
@@ -139,7 +139,8 @@ def test_verified_escalation_keeps_the_smallest_margin_that_resolves():
 
     import numpy as np
 
-    from neuralcol.stages.handling import pd_reduction_metrics, verified_escalation
+    from neuralcol.handler.resolve import verified_escalation
+    from neuralcol.stages.handler import pd_reduction_metrics
 
     z_user = torch.zeros(3, D)
     z_user[:, 0] = torch.tensor([0.9, 0.45, 1.5])
@@ -171,7 +172,7 @@ def test_verified_escalation_keeps_the_smallest_margin_that_resolves():
 def test_pd_reduction_metrics_by_hand():
     import numpy as np
 
-    from neuralcol.stages.handling import pd_reduction_metrics
+    from neuralcol.stages.handler import pd_reduction_metrics
 
     z_user = np.zeros((4, 2))
     z = np.array([[3.0, 4.0], [0.0, 1.0], [0.0, 2.0], [1.0, 0.0]])
@@ -184,7 +185,7 @@ def test_pd_reduction_metrics_by_hand():
     assert m["mean_pd_reduction_all"] == pytest.approx((1.0 + 0.5 - 1.0) / 3)
     np.testing.assert_array_equal(arr["success"], [True, True, False, False])
     # the per-input file the report bins by input PD: the same success criterion, the inputs' PD per sub-domain
-    from neuralcol.stages.handling import per_input_results
+    from neuralcol.stages.handler import per_input_results
 
     pd_sub = np.array([[1.0, 0.2], [0.1, 2.0], [1.0, 0.0], [0.5, 4.0]])
     per = per_input_results({"pd_before": pd_before, "pd_after": pd_after, **arr}, pd_sub)

@@ -9,7 +9,7 @@ import torch
 from test_active import RADIUS, BallOracle, D
 
 from neuralcol.active.acquisition import ProjectedAcquisition
-from neuralcol.data.collision_store import ORIGIN_PROJECTED, ORIGIN_UNIFORM, CollisionStore
+from neuralcol.samples.store import CollisionStore, Origin
 
 
 class HalfNaNDetector(torch.nn.Module):
@@ -36,17 +36,17 @@ def test_projection_nan_samples_are_dropped_counted_and_replaced(tmp_path):
     assert 20 < failed < 80, "about half of the picked codes start with z_0 > 0"
     assert new.info["n_projected"] == 50 - failed
     assert len(new.z) == 100, "failed projections are replaced by uniform samples"
-    assert (new.origin == ORIGIN_PROJECTED).sum() == 50 - failed and (new.origin == ORIGIN_UNIFORM).sum() == 50 + failed
+    assert (new.origin == Origin.PROJECTED).sum() == 50 - failed and (new.origin == Origin.UNIFORM).sum() == 50 + failed
     store.append(new.z, new.pd, new.pd_sub, new.collides, new.subset, 1, new.origin)
     rows = store.read()
     assert np.isfinite(rows.z).all() and np.isfinite(rows.pd).all() and np.isfinite(rows.pd_sub).all()
-    assert (rows.z[rows.origin == ORIGIN_PROJECTED][:, 0] <= 0).all(), "no sample from the NaN region"
+    assert (rows.z[rows.origin == Origin.PROJECTED][:, 0] <= 0).all(), "no sample from the NaN region"
     store.close()
 
 
 def test_handler_nan_inputs_are_counted_and_left_out_of_the_means():
-    from neuralcol.handling.alm import ALMSettings
-    from neuralcol.stages.handling import evaluate_handler
+    from neuralcol.handler.alm import ALMSettings
+    from neuralcol.stages.handler import evaluate_handler
 
     oracle = BallOracle()
     gen = torch.Generator().manual_seed(0)

@@ -17,8 +17,10 @@ import pytest
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from neuralcol.data import procedural
-from neuralcol.data.procedural import GENERATORS, make_proc_cloth, make_proc_hand
+from neuralcol.data.procedural import GENERATORS, cloth, hand
+from neuralcol.data.procedural.cloth import make_proc_cloth
+from neuralcol.data.procedural.hand import make_proc_hand
+from neuralcol.data.procedural.options import merge_kwargs
 from neuralcol.errors import UserInputError
 
 N_POSES = 16  # data-set poses checked per generator
@@ -162,30 +164,30 @@ def test_extrapolated_poses_collide(data, name):
 
 
 def test_hand_joint_space_extrapolation_collides():
-    p = procedural._merge_kwargs(procedural._HAND_DEFAULTS, {}, "test")
-    rig = procedural._build_hand_rig(p)
-    angles = procedural._sample_hand_angles(p, rig, N_EXTRAP, np.random.default_rng(7))
+    p = merge_kwargs(hand._HAND_DEFAULTS, {}, "test", hand.__name__)
+    rig = hand._build_hand_rig(p)
+    angles = hand._sample_hand_angles(p, rig, N_EXTRAP, np.random.default_rng(7))
     assert angles.shape == (N_EXTRAP, 21)
-    np.testing.assert_allclose(procedural._pose_hand(rig, np.zeros((1, 21)))[0], rig.rest, atol=1e-12)
+    np.testing.assert_allclose(hand._pose_hand(rig, np.zeros((1, 21)))[0], rig.rest, atol=1e-12)
     f = rig.faces
-    assert all(_flagged(x, f) == 0 for x in procedural._pose_hand(rig, angles))
-    flagged = np.array([_flagged(x, f) for x in procedural._pose_hand(rig, 2.0 * angles)])
+    assert all(_flagged(x, f) == 0 for x in hand._pose_hand(rig, angles))
+    flagged = np.array([_flagged(x, f) for x in hand._pose_hand(rig, 2.0 * angles)])
     assert (flagged > 0).mean() >= MIN_COLLIDING, f"joint angles x 2: flagged faces {flagged}"
 
 
 def test_cloth_fold_scale_extrapolation_collides():
-    p = procedural._merge_kwargs(procedural._CLOTH_DEFAULTS, {}, "test")
-    rest = procedural._cloth_rest(p)
-    q = procedural._sample_cloth_params(p, rest, N_EXTRAP, np.random.default_rng(7))
-    over = procedural._pose_cloth(p, rest, q._replace(scale=2 * q.scale))
+    p = merge_kwargs(cloth._CLOTH_DEFAULTS, {}, "test", cloth.__name__)
+    rest = cloth._cloth_rest(p)
+    q = cloth._sample_cloth_params(p, rest, N_EXTRAP, np.random.default_rng(7))
+    over = cloth._pose_cloth(p, rest, q._replace(scale=2 * q.scale))
     flagged = np.array([_flagged(x, rest.faces) for x in over])
     assert (flagged > 0).mean() >= MIN_COLLIDING, f"fold scale x 2: flagged faces {flagged}"
 
 
 def test_hand_pose_distribution_is_rich():
-    p = procedural._merge_kwargs(procedural._HAND_DEFAULTS, {}, "test")
-    rig = procedural._build_hand_rig(p)
-    angles = procedural._sample_hand_angles(p, rig, 200, np.random.default_rng(0))
+    p = merge_kwargs(hand._HAND_DEFAULTS, {}, "test", hand.__name__)
+    rig = hand._build_hand_rig(p)
+    angles = hand._sample_hand_angles(p, rig, 200, np.random.default_rng(0))
     std = np.rad2deg(angles.std(axis=0))
     assert (std > 2.0).all(), f"every one of the 21 joint angles must vary; std (deg) {np.round(std, 1)}"
     w = rig.weights

@@ -9,7 +9,7 @@ import torch
 
 from neuralcol.data.realistic import KINDS, balanced_selection, clear_mask, make_realistic_meshes, out_of_box
 from neuralcol.geometry.acap import ACAP
-from neuralcol.stages.handling import displacement_stats, transfer_displacement
+from neuralcol.handler.resolve import displacement_stats, transfer_displacement
 from tests.conftest import make_tube, twist
 
 
@@ -109,7 +109,7 @@ def test_balanced_selection():
 
 
 def test_report_real_meshes_block():
-    from experiments.report import realistic_rows
+    from experiments.reporting.markdown import realistic_rows
 
     def run(method, acc, mesh_acc):
         return {"detector": {"method": method}, "mesh_detector": {"test": {"accuracy": 0.9}},

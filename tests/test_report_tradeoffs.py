@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from experiments.report import main as report_main
-from experiments.report_tradeoffs import load_chosen
+from experiments.reporting.discover import load_chosen
 from neuralcol.errors import UserInputError
 
 PD = np.array([-0.9, -0.1, -0.2, 0.5, 0.7, 2.0, 5.0, 6.0])  # PD bins 0, 1, 1, 2, 2, 3, 4, 4 (pd_unit 1)

@@ -97,7 +97,7 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
     assert md["n_dc"] == 240 and md["n_rows"] == 240 + md["n_realistic"] and 0 < md["n_pairs"] <= 64
     assert md["test"]["n"] == 200 and 0 <= md["test"]["accuracy"] <= 1
     assert r["detection_mesh"]["n"] == r["detection"]["n"]
-    from neuralcol.stages.mesh_detector import load_mesh_detector
+    from neuralcol.nn.mesh_detector import load_mesh_detector
 
     cached = list((tmp_path / "cache" / "collision").glob("*/realistic_[0-9a-f]*.npz"))
     assert len(cached) == 1, cached  # the evaluation set, cached beside the U(Z) test set

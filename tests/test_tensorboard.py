@@ -6,7 +6,7 @@ import numpy as np
 from hydra import compose, initialize_config_dir
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from neuralcol.utils.tensorboard import pick_examples
+from neuralcol.metrics.tensorboard import pick_examples
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 

@@ -25,12 +25,12 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from neuralcol.active.boundary_search import BracketSearch, nearest_opposite
 from neuralcol.active.newton import Projection, newton_project
-from neuralcol.active.oracle import LatentOracle
-from neuralcol.data.collision_store import ORIGIN_PROJECTED, ORIGIN_SEARCHED, ORIGIN_UNIFORM, CollisionStore
-from neuralcol.data.uniform_samples import uniform_rows
+from neuralcol.collision.labeler import SUBSET_BOUNDARY
 from neuralcol.metrics.projection import boundary_shares, projection_quality
+from neuralcol.samples.oracle import LatentOracle
+from neuralcol.samples.store import CollisionStore, Origin
+from neuralcol.samples.uniform import uniform_rows
 
 
 class Acquired(NamedTuple):
@@ -81,7 +81,7 @@ class UniformAcquisition:
         sl = slice(self.cursor, stop)
         self.cursor = stop
         return Acquired(rows.z[sl], rows.pd[sl], rows.pd_sub[sl], rows.collides[sl], rows.subset[sl],
-                        np.full(int(n), ORIGIN_UNIFORM, np.int8), seconds, 0.0,
+                        np.full(int(n), Origin.UNIFORM, np.int8), seconds, 0.0,
                         {"n_uniform": int(n), "n_uniform_labeled_now": labeled,
                          "n_uniform_label_failures": failed, "n_label_failures": failed})
 
@@ -109,18 +109,13 @@ class ProjectedAcquisition(UniformAcquisition):
             to 0, i.e. probability closest to 0.5: pool-based uncertainty sampling; docs/diagnosis.md).
         candidates: candidate codes per selected code with ``start="uncertain"``.
         project: run the Newton projector from the starting codes (paper); False labels them as they are.
-        refine_steps: exact boundary search after labeling (:mod:`neuralcol.active.boundary_search`; 0: none,
-            the paper's): ``n // (1 + refine_steps)`` of the labeled codes are each paired with the nearest D_c
-            row on the other side of the boundary and moved towards ``PD = 0`` by ``refine_steps`` Illinois
-            regula-falsi steps, one exact label each; every labeled point joins D_c, so the round still labels
-            ``n`` codes (the starting codes are ``n - refine_steps * n // (1 + refine_steps)``).
     """
 
     STARTS = ("dc", "uncertain")
 
     def __init__(self, pool_path, oracle: LatentOracle, seed: int, box_lo: torch.Tensor, box_hi: torch.Tensor,
                  projected_fraction: float = 0.5, newton: dict | None = None, start: str = "dc",
-                 candidates: int = 10, project: bool = True, refine_steps: int = 0):
+                 candidates: int = 10, project: bool = True):
         super().__init__(pool_path, oracle, seed)
         if not 0.0 <= projected_fraction <= 1.0:
             raise ValueError(f"projected_fraction={projected_fraction} must be in [0, 1]")
@@ -131,10 +126,7 @@ class ProjectedAcquisition(UniformAcquisition):
         self.box_lo, self.box_hi = box_lo.detach().cpu().float(), box_hi.detach().cpu().float()
         self.projected_fraction = float(projected_fraction)
         self.newton = dict(newton or {})
-        if int(refine_steps) < 0:
-            raise ValueError(f"refine_steps={refine_steps} must be >= 0")
         self.start, self.candidates, self.project_codes = start, int(candidates), bool(project)
-        self.refine_steps = int(refine_steps)
 
     def _uncertain_codes(self, round_: int, net: torch.nn.Module, n: int) -> torch.Tensor:
         """The n of ``candidates * n`` fresh U(Z) codes (seeded by seed and round) with the smallest |logit|."""
@@ -152,8 +144,6 @@ class ProjectedAcquisition(UniformAcquisition):
         return cand[pick]
 
     def project(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> Acquired:
-        n_chains = n // (1 + self.refine_steps) if self.refine_steps else 0
-        n = n - self.refine_steps * n_chains  # starting codes; each chain adds refine_steps labels
         t0 = time.perf_counter()
         if self.start == "dc":
             gen = np.random.default_rng([self.seed, round_])
@@ -193,49 +183,10 @@ class ProjectedAcquisition(UniformAcquisition):
                 "newton_mean_iterations": float(proj.iterations.float().mean()) if n else float("nan"),
                 "projected_prob_mean": float(p.mean()) if len(p) else float("nan"),
                 "projected_collide_fraction": float(lab.collides.mean()) if len(z) else float("nan"),
-                "projected_boundary_fraction": float((lab.subset == 2).mean()) if len(z) else float("nan"),
+                "projected_boundary_fraction": float((lab.subset == SUBSET_BOUNDARY).mean()) if len(z) else float("nan"),
                 "projection": quality}
-        first = Acquired(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset,
-                         np.full(len(z), ORIGIN_PROJECTED, np.int8), lab.seconds, t_proj, info)
-        if not n_chains:
-            return first
-        return self._refine(first, store, min(n_chains, len(lab.z)))
-
-    def _refine(self, first: Acquired, store: CollisionStore, n_chains: int) -> Acquired:
-        """Exact boundary search from the first ``n_chains`` labeled codes (most uncertain first with
-        ``start="uncertain"``), each bracketed with its nearest D_c row on the other side; the searched points
-        are appended to ``first`` and their shares near the boundary recorded under ``projection.refined``
-        (each chain's last labeled point) and ``projection.refined_all`` (every point the search labeled)."""
-        t0 = time.perf_counter()
-        eps = float(self.oracle.pool.labeler.eps)
-        ref = store.read()
-        lo, hi = self.box_lo.numpy(), self.box_hi.numpy()
-        z, pd = first.z[:n_chains], first.pd[:n_chains]
-        partner = nearest_opposite(z, pd, ref.z, ref.pd, lo, hi)
-        has = partner >= 0  # no D_c row on the other side (never in practice): that start is not refined
-        search = BracketSearch(z[has], pd[has], ref.z[partner[has]], ref.pd[partner[has]])
-        parts, seconds, n_failed = [first], time.perf_counter() - t0, 0
-        for _ in range(self.refine_steps if len(search) else 0):
-            t1 = time.perf_counter()
-            zq = search.propose()
-            seconds += time.perf_counter() - t1
-            lab = self.oracle(torch.as_tensor(zq, dtype=torch.float32), desc="labeling boundary search")
-            search.update(lab.z, lab.pd, lab.ok)  # failed rows (ok False) leave their bracket as it was
-            n_failed += lab.n_failed
-            lab = lab.without_failures()
-            parts.append(Acquired(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset,
-                                  np.full(len(lab.z), ORIGIN_SEARCHED, np.int8), lab.seconds, 0.0, {}))
-        out = _concat(parts)
-        info = dict(first.info)
-        info["n_projected"] = int(len(out.z))
-        info["n_projected_label_failures"] = int(info["n_projected_label_failures"]) + n_failed
-        info["n_label_failures"] = int(info["n_label_failures"]) + n_failed
-        searched = out.pd[len(first.z):]
-        final = search.newest[np.isfinite(search.newest)]
-        info["projection"] = {**info["projection"], "refined": {"n": int(len(final)), **boundary_shares(final, eps)},
-                              "refined_all": {"n": int(len(searched)), **boundary_shares(searched, eps)}}
-        info["refine_steps"], info["n_refined_chains"] = self.refine_steps, int(len(search))
-        return out._replace(project_seconds=out.project_seconds + seconds, info=info)
+        return Acquired(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset,
+                        np.full(len(z), Origin.PROJECTED, np.int8), lab.seconds, t_proj, info)
 
     def __call__(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> Acquired:
         n_proj = int(round(n * self.projected_fraction))

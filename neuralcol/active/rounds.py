@@ -11,7 +11,6 @@ round with D_c truncated to the rows that checkpoint knew.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -22,10 +21,9 @@ import numpy as np
 
 from neuralcol.active.acquisition import UniformAcquisition
 from neuralcol.active.stopping import should_stop
-from neuralcol.data.collision_datamodule import CollisionDataModule
-from neuralcol.data.collision_store import ORIGIN_PROJECTED, ORIGIN_SEARCHED
+from neuralcol.samples.datamodule import CollisionDataModule
+from neuralcol.samples.store import Origin
 from neuralcol.utils.faults import fault_point
-from neuralcol.utils.files import atomic_path
 
 
 @dataclass(frozen=True)
@@ -50,11 +48,6 @@ class Schedule:
         """Epochs of a round on ``n_train`` training rows."""
         batches = max(1, -(-int(n_train) // self.batch_size))  # ceil
         return max(self.epochs, -(-self.min_steps // batches))
-
-
-def write_json_atomic(path: Path, obj) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(obj, indent=2))
 
 
 class DataRounds(L.Callback):
@@ -188,7 +181,7 @@ class DataRounds(L.Callback):
         if writer is None or not hasattr(writer, "add_scalar"):
             return
         flat = {k: v for k, v in quality.items() if not isinstance(v, dict)}
-        for group, sub in quality.items():  # start, uniform, refined, refined_all
+        for group, sub in quality.items():  # start, uniform
             if isinstance(sub, dict):
                 flat.update({f"{group}_{k}": v for k, v in sub.items()})
         for key, val in flat.items():
@@ -209,8 +202,7 @@ class DataRounds(L.Callback):
                   "epochs": self.round_end_epoch - self.round_start_epoch + 1,
                   "label_seconds": self.seconds["label"], "train_seconds": self.seconds["train"],
                   "project_seconds": self.seconds["project"],
-                  "n_projected_total": int((rows.origin == ORIGIN_PROJECTED).sum()),
-                  "n_searched_total": int((rows.origin == ORIGIN_SEARCHED).sum()),
+                  "n_projected_total": int((rows.origin == Origin.PROJECTED).sum()),
                   "subset_counts": np.bincount(rows.subset, minlength=3).tolist()}
         if self.extra_eval is not None:
             record["handling"] = self.extra_eval(pl_module.net)

@@ -20,10 +20,10 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from neuralcol.data.collision_datamodule import detector_targets
-from neuralcol.data.collision_store import VAL_EVERY, CollisionRows
 from neuralcol.metrics.detection import detection_metrics
 from neuralcol.nn.detector import CollisionDetector, detector_losses
+from neuralcol.samples.datamodule import detector_targets
+from neuralcol.samples.store import VAL_EVERY, CollisionRows
 
 LR_SCHEDULES = ("constant", "cosine")
 
@@ -56,7 +56,7 @@ def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, lo
     Args:
         net: a fresh detector (trained in place).
         rows: labeled rows (z, pd, pd_sub, subset, collides).
-        pd_unit, pd_clip, pd_floor: PD target scaling (:func:`~neuralcol.data.collision_datamodule.detector_targets`).
+        pd_unit, pd_clip, pd_floor: PD target scaling (:func:`~neuralcol.samples.datamodule.detector_targets`).
         loss: ``w_pd, w_pdsum, w_r, w_ce, margin, temperature`` (``conf/detector/*.yaml`` -> ``loss``).
         w_b: weight of L_b (0 for ``supv``).
         use_boundary_set: keep D_b (``supv_bd``) or fold it into D_p (``supv``).

@@ -125,7 +125,7 @@ def plausibility_report(space: LatentSpace, z: torch.Tensor, vertices: torch.Ten
       meshes and edges; a sample is within range if all its edges are within that range widened by
       ``tolerance`` (relative).
     * ACAP features: the decoded normalised features of a sample against [-bound, bound] (the data set's
-      range after :class:`~neuralcol.data.features.FeatureNormalizer`), widened by ``tolerance`` x bound;
+      range after :class:`~neuralcol.nn.normalizer.FeatureNormalizer`), widened by ``tolerance`` x bound;
       ``feature_entries_within`` is the mean share of feature entries inside, ``feature_within`` the share of
       samples with 99 % of their entries inside.
 

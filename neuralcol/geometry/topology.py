@@ -57,16 +57,6 @@ def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(cross, axis=-1)
 
 
-def mean_edge_length(vertices: np.ndarray, edges: np.ndarray) -> float:
-    """Mean length of the given edges (vertices (V, 3), edges (E, 2))."""
-    return float(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=-1).mean())
-
-
-def bbox_diagonal(vertices: np.ndarray) -> np.ndarray:
-    """Bounding-box diagonal length of (..., V, 3) vertices, shape (...)."""
-    return np.linalg.norm(vertices.max(axis=-2) - vertices.min(axis=-2), axis=-1)
-
-
 def check_faces(faces: np.ndarray, n_vertices: int, where: str) -> EdgeTopology:
     """Validate a face array: triangles, indices in range, no repeated index, manifold edges.
 

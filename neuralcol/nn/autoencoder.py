@@ -2,7 +2,7 @@
 
 Symbols: B batch, V vertices, K = |Z_0| level-1 components (= sub-domains), d level-2 latent size per
 component, F = 9 ACAP feature channels. Features are the *normalised* ACAP features (see
-:class:`neuralcol.data.features.FeatureNormalizer`).
+:class:`neuralcol.nn.normalizer.FeatureNormalizer`).
 
 Level 1 (Yang et al. 2020, attention-based deformation components): a linear encoder maps the features to
 ``Z_0 (B, K)``; the decoder adds K deformation components, each a small MLP of one latent scalar,

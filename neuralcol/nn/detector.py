@@ -10,11 +10,14 @@ Symbols: B batch, D = |Z_all|, K = |Z_0| sub-domains, d = level-2 code size.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from neuralcol.utils.files import atomic_path
 
 
 class DetectorOutput(NamedTuple):
@@ -228,7 +231,7 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
         l_ce = F.binary_cross_entropy_with_logits(out.logit[label_mask], target)
     else:
         l_ce = agg.new_zeros(())
-    bmask = subset == 2
+    bmask = subset == 2  # SUBSET_BOUNDARY (neuralcol.collision.labeler): D_b
     if boundary_reduction not in BOUNDARY_REDUCTIONS:
         raise ValueError(f"boundary_reduction={boundary_reduction!r}; use 'boundary' (the paper's) or 'batch'")
     if not bmask.any():
@@ -239,3 +242,49 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
         l_b = (out.prob[bmask] - 0.5).abs().sum() / len(subset)
     total = w_pd * l_pd + w_r * l_r + w_ce * l_ce + w_b * l_b
     return DetectorLosses(total, l_pd, l_r, l_ce, l_b)
+
+
+def decoder_code_features(space) -> tuple[torch.Tensor, torch.Tensor, str]:
+    """The first layer of the latent space's level-1 decoder, ``(w (K, H), b (K, H), activation)``."""
+    l1 = space.net.level1
+    return l1.comp_in_w.detach().cpu().float(), l1.comp_in_b.detach().cpu().float(), l1.activation
+
+
+def net_widths(net_cfg: dict) -> dict:
+    """The detector's widths ``{"state_dim", "hidden"}``: the configured ones times ``width`` (default 1; the
+    size sweep's multiplier, issue 17), rounded, at least 1."""
+    w = float(net_cfg.get("width", 1.0))
+    return {k: max(1, round(w * int(net_cfg[k]))) for k in ("state_dim", "hidden")}
+
+
+def build_detector(space, det: dict) -> CollisionDetector:
+    l2 = (space.dim - space.n_parts) // space.n_parts
+    box = (space.box_lo.detach().cpu(), space.box_hi.detach().cpu()) if det["net"]["normalize_inputs"] \
+        else (None, None)
+    feats = decoder_code_features(space) if det["net"].get("decoder_features", False) else None
+    return CollisionDetector(space.n_parts, l2, **net_widths(det["net"]), box_lo=box[0], box_hi=box[1],
+                             code_features=feats)
+
+
+def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, pd_unit: float) -> None:
+    blob = {"state": net.state_dict(), "n_components": net.n_components, "level2_dim": net.level2_dim,
+            "net": {**det["net"], **net_widths(det["net"]), "width": 1.0},  # widths as built
+            "method": method["name"], "pd_unit": pd_unit,
+            "code_features": None if net.feature_activation is None else
+            {"hidden": net.n_code_features, "activation": net.feature_activation}}
+    with atomic_path(path) as tmp:
+        torch.save(blob, tmp)
+
+
+def load_detector(path: str | Path, map_location="cpu") -> tuple[CollisionDetector, dict]:
+    """The final detector of a run (``detector.pt``) and its metadata."""
+    blob = torch.load(path, map_location=map_location, weights_only=False)
+    cf = blob.get("code_features")
+    feats = None
+    if cf is not None:  # shapes only; the values come with the state dict
+        zeros = torch.zeros(blob["n_components"], int(cf["hidden"]))
+        feats = (zeros, zeros, cf["activation"])
+    net = CollisionDetector(blob["n_components"], blob["level2_dim"], state_dim=int(blob["net"]["state_dim"]),
+                            hidden=int(blob["net"]["hidden"]), code_features=feats)
+    net.load_state_dict(blob["state"])
+    return net, {k: v for k, v in blob.items() if k != "state"}

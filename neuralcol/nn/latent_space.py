@@ -12,9 +12,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from neuralcol.data.features import FeatureNormalizer
 from neuralcol.geometry.acap import ACAP
 from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder, Level2Autoencoders
+from neuralcol.nn.normalizer import FeatureNormalizer
 from neuralcol.utils.files import atomic_path
 
 

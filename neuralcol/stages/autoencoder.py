@@ -25,12 +25,14 @@ from scipy.sparse.csgraph import connected_components
 
 from neuralcol.data.datasets import MeshDataset
 from neuralcol.data.feature_datamodule import FeatureDataModule
-from neuralcol.data.features import DatasetFeatures, FeatureNormalizer
+from neuralcol.data.features import DatasetFeatures
 from neuralcol.geometry.topology import edge_topology
 from neuralcol.lit.autoencoder import AutoencoderLitModule
 from neuralcol.metrics.reconstruction import relative_vertex_error
 from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder, Level2Autoencoders
 from neuralcol.nn.latent_space import LatentSpace
+from neuralcol.nn.normalizer import FeatureNormalizer
+from neuralcol.rundir import CacheDir
 from neuralcol.utils.config import as_dict
 
 
@@ -274,7 +276,7 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
     ae, lat = as_dict(ae_cfg), as_dict(latent_cfg)
     train_keys = {k: v for k, v in ae.items() if k not in ("progress_bar", "accelerator", "val_every")}
     key = autoencoder_cache_key(ds, feats.reference_index, feats.acap.settings, train_keys, lat, seed)
-    path = Path(cache_dir) / "autoencoders" / key / "latent_space.pt" if cache_dir else None
+    path = CacheDir(cache_dir).latent_space(key) if cache_dir else None
     if path is None:
         space, report = train_latent_space(ds, feats, ae, lat, seed, logger)
         return space, {**report, "cache_key": key}, False

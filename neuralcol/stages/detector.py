@@ -11,7 +11,6 @@ detector) and ``test_predictions.npz`` (the final detector on the test set, :fun
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from pathlib import Path
@@ -21,79 +20,18 @@ import numpy as np
 import torch
 
 from neuralcol.active.acquisition import ProjectedAcquisition, UniformAcquisition
-from neuralcol.active.oracle import LatentOracle
-from neuralcol.active.rounds import DataRounds, Schedule, write_json_atomic
-from neuralcol.data.collision_datamodule import CollisionDataModule
-from neuralcol.data.collision_store import CollisionRows
-from neuralcol.data.uniform_samples import labeled_uniform_rows
+from neuralcol.active.rounds import DataRounds, Schedule
 from neuralcol.lit.detector import DetectorLitModule
 from neuralcol.metrics.detection import detection_metrics
-from neuralcol.nn.detector import CollisionDetector
+from neuralcol.metrics.tensorboard import log_round_examples
+from neuralcol.nn.detector import CollisionDetector, build_detector, net_widths, save_detector
+from neuralcol.samples.cache import label_failures, samples_cache_dir, shared_test_set
+from neuralcol.samples.datamodule import CollisionDataModule
+from neuralcol.samples.oracle import LatentOracle
+from neuralcol.samples.store import CollisionRows
+from neuralcol.stages.validate import METHODS  # one list of method names
 from neuralcol.utils.config import as_dict
-from neuralcol.utils.files import atomic_path
-from neuralcol.utils.tensorboard import log_round_examples
-from neuralcol.utils.validate import METHODS  # one list of method names
-
-
-def samples_cache_dir(cache_dir: str | Path, latent_key: str, labeler) -> Path:
-    """``<cache>/collision/<key>``: key of the latent space and of the labeler's settings."""
-    settings = {"latent": latent_key, "eps": float(labeler.eps), "cap": float(labeler.cap),
-                "tau": float(labeler.tau), "n_parts": int(labeler.n_parts)}
-    kind = getattr(labeler, "label_kind", "exact")
-    if kind != "exact":  # another definition of the labels (e.g. python-fcl's): never mixed with ours
-        settings["labels"] = str(kind)
-    key = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
-    folder = Path(cache_dir) / "collision" / key
-    folder.mkdir(parents=True, exist_ok=True)
-    if not (folder / "labeler.json").is_file():
-        write_json_atomic(folder / "labeler.json", settings)
-    return folder
-
-
-def decoder_code_features(space) -> tuple[torch.Tensor, torch.Tensor, str]:
-    """The first layer of the latent space's level-1 decoder, ``(w (K, H), b (K, H), activation)``."""
-    l1 = space.net.level1
-    return l1.comp_in_w.detach().cpu().float(), l1.comp_in_b.detach().cpu().float(), l1.activation
-
-
-def net_widths(net_cfg: dict) -> dict:
-    """The detector's widths ``{"state_dim", "hidden"}``: the configured ones times ``width`` (default 1; the
-    size sweep's multiplier, issue 17), rounded, at least 1."""
-    w = float(net_cfg.get("width", 1.0))
-    return {k: max(1, round(w * int(net_cfg[k]))) for k in ("state_dim", "hidden")}
-
-
-def build_detector(space, det: dict) -> CollisionDetector:
-    l2 = (space.dim - space.n_parts) // space.n_parts
-    box = (space.box_lo.detach().cpu(), space.box_hi.detach().cpu()) if det["net"]["normalize_inputs"] \
-        else (None, None)
-    feats = decoder_code_features(space) if det["net"].get("decoder_features", False) else None
-    return CollisionDetector(space.n_parts, l2, **net_widths(det["net"]), box_lo=box[0], box_hi=box[1],
-                             code_features=feats)
-
-
-def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, pd_unit: float) -> None:
-    blob = {"state": net.state_dict(), "n_components": net.n_components, "level2_dim": net.level2_dim,
-            "net": {**det["net"], **net_widths(det["net"]), "width": 1.0},  # widths as built
-            "method": method["name"], "pd_unit": pd_unit,
-            "code_features": None if net.feature_activation is None else
-            {"hidden": net.n_code_features, "activation": net.feature_activation}}
-    with atomic_path(path) as tmp:
-        torch.save(blob, tmp)
-
-
-def load_detector(path: str | Path, map_location="cpu") -> tuple[CollisionDetector, dict]:
-    """The final detector of a run (``detector.pt``) and its metadata."""
-    blob = torch.load(path, map_location=map_location, weights_only=False)
-    cf = blob.get("code_features")
-    feats = None
-    if cf is not None:  # shapes only; the values come with the state dict
-        zeros = torch.zeros(blob["n_components"], int(cf["hidden"]))
-        feats = (zeros, zeros, cf["activation"])
-    net = CollisionDetector(blob["n_components"], blob["level2_dim"], state_dim=int(blob["net"]["state_dim"]),
-                            hidden=int(blob["net"]["hidden"]), code_features=feats)
-    net.load_state_dict(blob["state"])
-    return net, {k: v for k, v in blob.items() if k != "state"}
+from neuralcol.utils.files import atomic_path, write_json_atomic
 
 
 def evaluate_on_test(module: DetectorLitModule, test: CollisionRows) -> dict:
@@ -161,24 +99,6 @@ def inference_us(net: CollisionDetector, z: np.ndarray, batch_sizes=(1, 4096), r
     return out
 
 
-def shared_test_set(oracle: LatentOracle, det_cfg, latent_key: str, cache_dir: str | Path):
-    """The fixed test set of uniform samples (labeled once, cached, shared by every method and seed):
-    (rows, seconds spent labeling now, rows labeled now)."""
-    det = as_dict(det_cfg)
-    shared = samples_cache_dir(cache_dir, latent_key, oracle.pool.labeler)
-    return labeled_uniform_rows(shared / f"test_s{det['test_seed']}.h5", oracle, int(det["test_size"]),
-                                int(det["test_seed"]), desc="labeling the test set")
-
-
-def _label_failures(path: Path) -> int:
-    """Codes of a cached uniform-sample store the exact labeler failed on (dropped and replaced; 0 if none)."""
-    import h5py
-    from filelock import FileLock
-
-    with FileLock(str(path) + ".lock"), h5py.File(path, "r") as h5:  # the lock uniform_rows writes under
-        return int(h5.attrs.get("n_label_failures", 0))
-
-
 def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key: str, seed: int,
                    cache_dir: str | Path, run_dir: str | Path, logger=None, round_eval=None) -> dict:
     """Run one method end to end (or resume it); returns ``{"rounds": [...], "detector": {...}}``.
@@ -202,7 +122,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     t0 = time.perf_counter()
     test, test_label_s, test_labeled = shared_test_set(oracle, det, latent_key, cache_dir)
     test_s = time.perf_counter() - t0
-    test_failures = _label_failures(shared / f"test_s{det['test_seed']}.h5")
+    test_failures = label_failures(shared / f"test_s{det['test_seed']}.h5")
     # 2. D_c, the acquisition and the rounds
     pd_unit = float(labeler.cap)
     dm = CollisionDataModule(run_dir / "dc.h5", space.dim, space.n_parts, int(det["batch_size"]), pd_unit,
@@ -214,8 +134,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
                                        float(method["projected_fraction"]), det["newton"],
                                        start=str(method.get("start", "dc")),
                                        candidates=int(method.get("candidates", 10)),
-                                       project=bool(method.get("project", True)),
-                                       refine_steps=int(method.get("refine_steps", 0)))
+                                       project=bool(method.get("project", True)))
     elif method["acquisition"] == "uniform":
         acquire = UniformAcquisition(pool_path, oracle, seed)
     else:

@@ -21,49 +21,15 @@ from torch.utils.data import DataLoader, TensorDataset
 from neuralcol.geometry.contact_pairs import ContactFeatures, select_contact_pairs
 from neuralcol.lit.mesh_detector import MeshDetectorLitModule
 from neuralcol.metrics.detection import detection_metrics
-from neuralcol.nn.mesh_detector import MeshDetector
+from neuralcol.nn.mesh_detector import (
+    MeshDetector,
+    code_logits,
+    decoded_batches,
+    mesh_features,
+    mesh_logits_from_features,
+    save_mesh_detector,
+)
 from neuralcol.utils.config import as_dict
-from neuralcol.utils.files import atomic_path
-
-
-def decoded_batches(space, z: np.ndarray, batch: int = 256):
-    """Yield the decoded meshes of ``z`` (N, D), ``batch`` at a time, as float32 CPU tensors."""
-    zt = torch.as_tensor(np.asarray(z, np.float32))
-    with torch.no_grad():
-        for c in zt.split(batch):
-            yield space.decode(c.to(space.box_lo.device)).cpu().float()
-
-
-def mesh_features(features: ContactFeatures, meshes, batch: int = 256) -> np.ndarray:
-    """(N, 3 P) float32 features of meshes given as an (N, V, 3) array or an iterable of (b, V, 3) batches."""
-    if isinstance(meshes, np.ndarray) or torch.is_tensor(meshes):
-        meshes = torch.as_tensor(np.asarray(meshes), dtype=torch.float32).split(batch)
-    out = []
-    with torch.no_grad():
-        for m in meshes:
-            out.append(features(torch.as_tensor(m, dtype=torch.float32)).numpy())
-    return np.concatenate(out) if out else np.zeros((0, features.n_features), np.float32)
-
-
-def code_logits(net: MeshDetector, space, z: np.ndarray, batch: int = 256) -> np.ndarray:
-    """(N,) logits of the mesh detector on the meshes that codes decode to."""
-    feats = mesh_features(net.features, decoded_batches(space, z, batch))
-    return mesh_logits_from_features(net, feats)
-
-
-def mesh_logits_from_features(net: MeshDetector, feats: np.ndarray, batch: int = 4096) -> np.ndarray:
-    was = net.training
-    net.eval()
-    with torch.no_grad():
-        x = torch.as_tensor(feats, dtype=torch.float32)
-        out = [net.logit_from_features(c) for c in x.split(batch)]
-    net.train(was)
-    return torch.cat(out).double().numpy() if out else np.zeros(0)
-
-
-def mesh_logits(net: MeshDetector, vertices: np.ndarray, batch: int = 256) -> np.ndarray:
-    """(N,) logits of the mesh detector on meshes (N, V, 3)."""
-    return mesh_logits_from_features(net, mesh_features(net.features, vertices, batch))
 
 
 def train_mesh_detector(space, dc_z: np.ndarray, dc_collides: np.ndarray, real_vertices: np.ndarray,
@@ -144,24 +110,6 @@ def train_mesh_detector(space, dc_z: np.ndarray, dc_collides: np.ndarray, real_v
     return net, report
 
 
-def save_mesh_detector(path: Path, net: MeshDetector) -> None:
-    f = net.features
-    blob = {"pairs": f.pairs.cpu(), "faces": f.faces.cpu(), "radius": f.radius, "clip": f.clip,
-            "hidden": net.hidden, "state": {k: v.cpu() for k, v in net.mlp.state_dict().items()}}
-    with atomic_path(path) as tmp:
-        torch.save(blob, tmp)
-
-
-def load_mesh_detector(path: str | Path) -> MeshDetector:
-    """The mesh detector saved by :func:`train_mesh_detector` (read with ``weights_only=True``)."""
-    blob = torch.load(path, map_location="cpu", weights_only=True)
-    # the saved faces are already the ones around the pair vertices; ContactFeatures keeps them all
-    feats = ContactFeatures(blob["pairs"].numpy(), blob["faces"].numpy(), float(blob["radius"]), float(blob["clip"]))
-    net = MeshDetector(feats, hidden=int(blob["hidden"]))
-    net.mlp.load_state_dict(blob["state"])
-    return net.eval()
-
-
 def mesh_detector_stage(space, vertices: np.ndarray, features: np.ndarray, acap, train_index, pool, cfg,
                         samples_dir: str | Path, eps: float, dc_path: str | Path, seed: int, run_dir: str | Path,
                         test=None, logger=None) -> tuple[MeshDetector, dict]:
@@ -176,7 +124,7 @@ def mesh_detector_stage(space, vertices: np.ndarray, features: np.ndarray, acap,
         run_dir: where ``mesh_detector.pt`` goes. test: U(Z) test rows (``z``, ``collides``) or None.
         logger: Lightning logger or None.
     """
-    from neuralcol.data.collision_store import CollisionStore
+    from neuralcol.samples.store import CollisionStore
     from neuralcol.stages.realistic import realistic_set
 
     t0 = time.perf_counter()

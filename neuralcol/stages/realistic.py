@@ -30,8 +30,9 @@ from neuralcol.data.realistic import (
     make_realistic_meshes,
     out_of_box,
 )
+from neuralcol.handler.alm import ALMSettings
+from neuralcol.handler.resolve import displacement_stats, resolve_meshes
 from neuralcol.metrics.detection import detection_metrics
-from neuralcol.stages.handling import ALMSettings, displacement_stats, resolve_meshes
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.files import atomic_path
 
@@ -133,7 +134,7 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
         settings, margins, batch_size: the handler's settings, verification margins and batch.
         mesh_net: the detector that reads the mesh (:class:`~neuralcol.nn.mesh_detector.MeshDetector`), judged
             on the meshes themselves (``detection_mesh``, ``per_kind_mesh``); None: not evaluated.
-        repair: :class:`~neuralcol.handling.contact_repair.RepairSettings` or None: the contact repair as the
+        repair: :class:`~neuralcol.handler.contact_repair.RepairSettings` or None: the contact repair as the
             handler's last verified stage (the pool's labeler runs it, in this process); with
             ``repair_reference`` in ``cfg`` the repair alone on the inputs is measured beside it
             (``handling.repair_only``).
@@ -178,7 +179,7 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
     arrays = {"z": z.numpy(), "logit": logit, "pd": pd, "pd_round_trip": pd_rt, "clear": clear,
               "kind": meshes.kind, "out_of_box": oob}
     if mesh_net is not None:
-        from neuralcol.stages.mesh_detector import mesh_logits
+        from neuralcol.nn.mesh_detector import mesh_logits
 
         logit_mesh = mesh_logits(mesh_net, meshes.vertices)
         pred_mesh = logit_mesh > 0
@@ -227,7 +228,7 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
                        "handled_pd_after": res.pd_after, "handled_displacement_median_frac": moved["median_frac"],
                        "handled_displacement_max_frac": moved["max_frac"], "handled_repaired": res.repaired})
         if repair is not None and c.get("repair_reference", False):
-            from neuralcol.handling.contact_repair import outward_sign, repair_meshes
+            from neuralcol.handler.contact_repair import outward_sign, repair_meshes
 
             t_r = time.perf_counter()
             rest = space.rest_vertices.cpu().numpy()

@@ -16,13 +16,13 @@ from pathlib import Path
 from filelock import FileLock, Timeout
 
 from neuralcol.errors import UserInputError
+from neuralcol.rundir import RunDir
 
 LOCK_NAME = ".run.lock"
-FINISHED_MARKER = "metrics.json"
 
 
 def _overrides(run_dir: Path) -> str | None:
-    path = run_dir / ".hydra" / "overrides.yaml"
+    path = RunDir(run_dir).overrides
     return path.read_text() if path.is_file() else None
 
 
@@ -53,7 +53,7 @@ def find_interrupted_run(new_dir: str | Path, multirun: bool = False) -> Path | 
     else:
         candidates = [d for d in new_dir.parent.iterdir() if d != new_dir]
     candidates = [d for d in candidates if d.is_dir() and _overrides(d) == mine
-                  and not (d / FINISHED_MARKER).is_file() and not (d / "resumed_in.txt").is_file()]
+                  and not RunDir(d).is_finished() and not RunDir(d).resumed_in.is_file()]
     for d in sorted(candidates, key=lambda p: p.stat().st_mtime, reverse=True):
         if not _in_use(d):
             return d

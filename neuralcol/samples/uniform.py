@@ -14,7 +14,7 @@ attribute ``n_codes`` is how many codes of the sequence were consumed (rows + fa
 rows as labeling 4000 at once (as long as the failures are deterministic, e.g. not a one-off crash), and an
 interrupted labeling loses at most one chunk.
 
-Stores are HDF5 files (:class:`~neuralcol.data.collision_store.CollisionStore`) guarded by a file lock, so
+Stores are HDF5 files (:class:`~neuralcol.samples.store.CollisionStore`) guarded by a file lock, so
 concurrent runs (a Hydra multirun with a parallel launcher) extend and read them safely.
 """
 
@@ -28,9 +28,9 @@ import numpy as np
 import torch
 from filelock import FileLock
 
-from neuralcol.active.oracle import LatentOracle
-from neuralcol.data.collision_store import ORIGIN_UNIFORM, CollisionRows, CollisionStore, StoreCorruptedError
 from neuralcol.nn.latent_space import LatentSpace
+from neuralcol.samples.oracle import LatentOracle
+from neuralcol.samples.store import CollisionRows, CollisionStore, Origin, StoreCorruptedError
 
 BLOCK = 1024
 LABEL_CHUNK = 2048  # rows labeled and committed together
@@ -113,7 +113,7 @@ def uniform_rows(path: str | os.PathLike, oracle: LatentOracle, n: int, seed: in
             have = len(store)
             lab = oracle(uniform_codes(space, seed, a, b), desc=f"{desc} [rows {have}:{have + b - a} of {n}]")
             good = lab.without_failures()
-            store.append(good.z, good.pd, good.pd_sub, good.collides, good.subset, 0, ORIGIN_UNIFORM)
+            store.append(good.z, good.pd, good.pd_sub, good.collides, good.subset, 0, Origin.UNIFORM)
             n_codes, n_fail = b, n_fail + lab.n_failed
             store.attrs["n_codes"], store.attrs["n_label_failures"] = n_codes, n_fail
             seconds += lab.seconds

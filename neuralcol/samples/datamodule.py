@@ -1,6 +1,6 @@
 """D_c as a LightningDataModule: an append-only HDF5 store served as in-memory tensors.
 
-The module owns the store (:class:`~neuralcol.data.collision_store.CollisionStore`): rows are appended
+The module owns the store (:class:`~neuralcol.samples.store.CollisionStore`): rows are appended
 between training epochs (:meth:`CollisionDataModule.append`), the tensors are re-read, and the trainer picks
 the new data up at the next epoch (``reload_dataloaders_every_n_epochs=1``). The train/validation split is
 the store's id-based 80/20 split, so it stays stable as D_c grows.
@@ -21,7 +21,7 @@ import torch
 from torch.utils.data import BatchSampler, DataLoader, Sampler, SequentialSampler, TensorDataset
 
 from neuralcol.collision.labeler import SUBSET_NEGATIVE, SUBSET_POSITIVE
-from neuralcol.data.collision_store import CollisionRows, CollisionStore
+from neuralcol.samples.store import CollisionRows, CollisionStore
 
 
 def detector_targets(rows: CollisionRows, pd_unit: float, pd_clip: float,

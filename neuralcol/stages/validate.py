@@ -99,14 +99,14 @@ def config_problems(cfg: DictConfig) -> list[str]:
         if any(float(x) <= float(margin or 0) for x in m) or m != sorted(m):
             problems.append(f"handler.verify_margins={m}: must increase and exceed handler.alm.margin={margin}")
     if _get(cfg, "handler.alm") is not None:
-        from neuralcol.handling.alm import ALMSettings
+        from neuralcol.handler.alm import ALMSettings
 
         try:
             ALMSettings(**OmegaConf.to_container(cfg.handler.alm, resolve=True))
         except (TypeError, ValueError) as e:
             problems.append(f"handler.alm: {e}")
     if _get(cfg, "handler.repair") is not None:
-        from neuralcol.handling.contact_repair import repair_settings
+        from neuralcol.handler.contact_repair import repair_settings
 
         try:
             repair_settings(OmegaConf.to_container(cfg.handler.repair, resolve=True))

@@ -1,13 +1,7 @@
-"""Procedural mesh data sets that need no download: an articulated hand and a folded skirt.
+"""Procedural articulated hand (data set ``proc_hand``): palm + five fingers, skinned, collision-free poses.
 
-Both generators return ``vertices (N, V, 3) float64`` and ``faces (F, 3) int64`` (one topology for all
-poses), are deterministic by ``seed`` (``np.random.default_rng(seed)``, no global RNG) and take their
-geometry and pose-range settings as keyword arguments; an unknown keyword raises
-:class:`~neuralcol.errors.UserInputError` listing the valid ones. Units are arbitrary (palm width 0.89,
-skirt height 1). 100 poses take well under a second each.
+Generator conventions (return shapes, seeding, keyword errors): :mod:`neuralcol.data.procedural`.
 
-proc_hand (:func:`make_proc_hand`)
-----------------------------------
 Construction (box modelling, one Catmull-Clark step): the palm is the surface of a box lattice of
 11 x 6 x 4 cells with non-uniform spacing: x across the palm (thumb side at x = 0), y from the wrist
 (y = 0) to the knuckles (y = ``palm_length``), z from the palmar (z = 0) to the dorsal side (z =
@@ -73,48 +67,6 @@ Hand keywords (defaults): ``finger_widths=(0.22, 0.23, 0.22, 0.19)`` (index, mid
 ``thumb_mcp_range=(0, 35)``, ``thumb_ip_range=(0, 50)``, ``cup_range=(0, 12)``; sampling:
 ``closure_spread=0.25``, ``joint_noise=0.2``, ``spread_noise=0.25``, ``capsule_scale=0.9``,
 ``clearance=0.02``, ``max_draws=50``.
-
-proc_cloth (:func:`make_proc_cloth`)
-------------------------------------
-Construction: an open cone (skirt) of ``n_rings`` rings of ``n_around`` vertices from the waist (radius
-``waist_radius``, z = 0) to the hem (radius ``hem_radius``, z = -``height``); the ring spacing grows
-geometrically with the radius so the quads stay near square, and each quad is split into two triangles
-with alternating diagonals. A 2-manifold with boundary: edges of the waist and hem loops have one
-triangle, all others two. Defaults: 2640 vertices, 5104 triangles.
-
-A pose, in cylindrical coordinates (column angle t, height fraction h in [0, 1]) around the rest radius
-R(h) = waist_radius + (flare hem_radius - waist_radius) h:
-
-* folds: ``n_folds`` modes with distinct wave numbers k drawn from ``fold_k_range``, weight
-  w ~ ``fold_weight_range``, phase p ~ U(0, 2 pi), phase drift d ~ U(-fold_drift, fold_drift) over the
-  height (slanted folds), radial/tangential ratio r ~ ``fold_ratio_range``, grown toward the hem by h^e,
-  e ~ ``fold_exponent_range``: tangential offset ``s h^e sum_k w R_hem / k sin(k t + p + d h)``, radial
-  offset ``s h^e sum_k r w R_hem / k cos(k t + p + d h)``. Radial and tangential parts are a quarter period
-  apart, so a too strong mode turns the cross-section into a prolate trochoid whose loops pass through
-  each other: the skirt folds into itself;
-* flare ~ ``flare_range`` (hem radius factor); ``n_bumps`` radial Gaussian bumps (amplitude
-  ~ ``bump_range``, centre height ~ ``bump_h_range``, widths ``bump_width`` = (angle in radians, height
-  fraction)); twist ``tau h^2`` about the axis, tau ~ ``twist_range`` (radians); sway of the hem
-  ``h^2 (sx, sy)``, sx, sy ~ ``sway_range``.
-
-That is 30 varying parameters with the defaults (3 x 5 per fold mode, e, s, flare, 3 x 3 bump
-parameters, tau, sx, sy).
-
-Why the data-set poses are collision free: the height depends on h only, so every ring stays in its own
-horizontal plane and the surface is embedded when every ring is star-shaped around its centre (polar
-angle increasing along the ring; twist and sway move a ring rigidly and keep this). For each pose the fold
-scale s* where this first fails, or the radius drops below ``min_radius_frac`` R(h), is found by
-bisection, and the pose uses ``s = c s*`` with c ~ ``fold_strength_range`` (< 1). Checked with MeshLab
-on 1500 poses, even with c up to 0.97: none intersects. Extrapolating between poses in vertex space
-(t = 1.5 / 2) intersects in about 50 % / 80 % of random pairs, scaling the folds of a pose by 1.5 / 2 in
-about 45 % / 85 %.
-
-Cloth keywords (defaults): ``n_around=88``, ``n_rings=30``, ``waist_radius=0.35``, ``hem_radius=0.75``,
-``height=1.0``, ``n_folds=3``, ``fold_k_range=(3, 10)``, ``fold_weight_range=(0.3, 1.0)``,
-``fold_ratio_range=(1.0, 2.2)``, ``fold_drift=1.0``, ``fold_exponent_range=(1.2, 2.0)``,
-``fold_strength_range=(0.45, 0.85)``, ``min_radius_frac=0.25``, ``flare_range=(0.85, 1.15)``,
-``n_bumps=3``, ``bump_range=(-0.04, 0.04)``, ``bump_h_range=(0.2, 1.0)``, ``bump_width=(0.4, 0.15)``,
-``twist_range=(-0.5, 0.5)``, ``sway_range=(-0.12, 0.12)``.
 """
 
 from __future__ import annotations
@@ -123,10 +75,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from neuralcol.data.procedural.options import check_n_poses, check_range, merge_kwargs
 from neuralcol.errors import UserInputError
-
-# --------------------------------------------------------------------------------------------------
-# keyword handling
+from neuralcol.geometry.quad_mesh import box_lattice, catmull_clark, patch_boundary_loop, triangulate_quads
+from neuralcol.geometry.smoothing import taubin_smooth
 
 _HAND_DEFAULTS: dict = {
     # geometry
@@ -171,54 +123,6 @@ _HAND_DEFAULTS: dict = {
     "clearance": 0.02,
     "max_draws": 50,
 }
-
-_CLOTH_DEFAULTS: dict = {
-    "n_around": 88,
-    "n_rings": 30,
-    "waist_radius": 0.35,
-    "hem_radius": 0.75,
-    "height": 1.0,
-    "n_folds": 3,
-    "fold_k_range": (3, 10),
-    "fold_weight_range": (0.3, 1.0),
-    "fold_ratio_range": (1.0, 2.2),
-    "fold_drift": 1.0,
-    "fold_exponent_range": (1.2, 2.0),
-    "fold_strength_range": (0.45, 0.85),
-    "min_radius_frac": 0.25,
-    "flare_range": (0.85, 1.15),
-    "n_bumps": 3,
-    "bump_range": (-0.04, 0.04),
-    "bump_h_range": (0.2, 1.0),
-    "bump_width": (0.4, 0.15),
-    "twist_range": (-0.5, 0.5),
-    "sway_range": (-0.12, 0.12),
-}
-
-
-def _merge_kwargs(defaults: dict, given: dict, who: str) -> dict:
-    unknown = sorted(set(given) - set(defaults))
-    if unknown:
-        raise UserInputError(
-            f"{who}: unknown keyword argument(s) {unknown}; valid ones are {sorted(defaults)} "
-            "(see the neuralcol.data.procedural module docstring)"
-        )
-    out = dict(defaults)
-    out.update(given)
-    return out
-
-
-def _check_n_poses(n_poses: int, who: str) -> None:
-    if int(n_poses) != n_poses or n_poses < 1:
-        raise UserInputError(f"{who}: n_poses={n_poses!r}; must be an integer >= 1")
-
-
-def _range(p: dict, key: str, who: str, nonneg: bool = False) -> tuple[float, float]:
-    lo, hi = (float(x) for x in p[key])
-    if not lo <= hi or (nonneg and lo < 0):
-        need = "lo <= hi and lo >= 0" if nonneg else "lo <= hi"
-        raise UserInputError(f"{who}: {key}=({lo}, {hi}) is not a valid range; need {need}")
-    return lo, hi
 
 
 # --------------------------------------------------------------------------------------------------
@@ -265,127 +169,8 @@ def _apply(aff: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return pts @ np.swapaxes(aff[..., :3], -1, -2) + aff[..., None, :, 3]
 
 
-def _box_lattice(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Surface quads of a box lattice with outward orientation.
-
-    Args:
-        xs, ys, zs: (n_a + 1,) increasing lattice coordinates along each axis.
-
-    Returns:
-        verts (V, 3), quads (Q, 4) int64 (counter-clockwise seen from outside), grid (nx+1, ny+1, nz+1)
-        int64 vertex index of each lattice point (-1 inside).
-    """
-    coords = (xs, ys, zs)
-    n = tuple(len(c) - 1 for c in coords)
-    ii, jj, kk = np.meshgrid(*(np.arange(m + 1) for m in n), indexing="ij")
-    surf = (ii == 0) | (ii == n[0]) | (jj == 0) | (jj == n[1]) | (kk == 0) | (kk == n[2])
-    grid = np.full(surf.shape, -1, dtype=np.int64)
-    grid[surf] = np.arange(int(surf.sum()))
-    verts = np.stack([xs[ii[surf]], ys[jj[surf]], zs[kk[surf]]], axis=-1)
-    quads = []
-    for a in range(3):
-        b, c = (a + 1) % 3, (a + 2) % 3
-        ib, ic = (m.ravel() for m in np.meshgrid(np.arange(n[b]), np.arange(n[c]), indexing="ij"))
-        for side, sign in ((0, -1), (n[a], 1)):
-            def at(db: int, dc: int, side=side, ib=ib, ic=ic, a=a, b=b, c=c) -> np.ndarray:
-                idx = [None, None, None]
-                idx[a], idx[b], idx[c] = np.full_like(ib, side), ib + db, ic + dc
-                return grid[idx[0], idx[1], idx[2]]
-
-            q = np.stack([at(0, 0), at(1, 0), at(1, 1), at(0, 1)], axis=1)  # normal e_b x e_c = +e_a
-            quads.append(q if sign > 0 else q[:, ::-1])
-    return verts, np.concatenate(quads).astype(np.int64), grid
-
-
-def _catmull_clark(verts: np.ndarray, quads: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One Catmull-Clark step on a closed quad mesh; also subdivides any extra vertex attributes.
-
-    Args:
-        verts: (V, D) float, positions in the first 3 columns (all columns are subdivided linearly).
-        quads: (Q, 4) int, closed 2-manifold.
-
-    Returns:
-        verts (V + E + Q, D) ordered [vertex points, edge points, face points], quads (4 Q, 4).
-    """
-    nv, nq = len(verts), len(quads)
-    half = np.stack([quads, np.roll(quads, -1, axis=1)], axis=-1).reshape(-1, 2)  # (4Q, 2)
-    edges, inv = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True)
-    inv = inv.reshape(-1)
-    ne = len(edges)
-    if not np.all(np.bincount(inv, minlength=ne) == 2):
-        raise ValueError("catmull_clark: control mesh is not closed 2-manifold (an edge without two quads)")
-    fp = verts[quads].mean(axis=1)  # (Q, D)
-    fsum = np.zeros((ne, verts.shape[1]))
-    np.add.at(fsum, inv, np.repeat(fp, 4, axis=0))
-    ep = (verts[edges[:, 0]] + verts[edges[:, 1]] + fsum) / 4.0
-    val = np.bincount(edges.ravel(), minlength=nv).astype(np.float64)  # valence = incident faces (closed)
-    qsum = np.zeros_like(verts)
-    np.add.at(qsum, quads.ravel(), np.repeat(fp, 4, axis=0))
-    mid = 0.5 * (verts[edges[:, 0]] + verts[edges[:, 1]])
-    rsum = np.zeros_like(verts)
-    np.add.at(rsum, edges[:, 0], mid)
-    np.add.at(rsum, edges[:, 1], mid)
-    n = val[:, None]
-    vp = (qsum / n + 2.0 * rsum / n + (n - 3.0) * verts) / n
-    e_of = inv.reshape(nq, 4)  # edge (c, c+1) of each quad corner c
-    fidx = nv + ne + np.arange(nq)
-    new_quads = np.concatenate(
-        [np.stack([quads[:, c], nv + e_of[:, c], fidx, nv + e_of[:, (c - 1) % 4]], axis=1) for c in range(4)]
-    )
-    return np.concatenate([vp, ep, fp]), new_quads.astype(np.int64)
-
-
-def _triangulate(verts: np.ndarray, quads: np.ndarray) -> np.ndarray:
-    """Split quads (Q, 4) along the shorter diagonal of ``verts`` (V, 3); returns (2Q, 3) int64 faces."""
-    a, b, c, d = quads.T
-    d_ac = np.linalg.norm(verts[a] - verts[c], axis=1)
-    d_bd = np.linalg.norm(verts[b] - verts[d], axis=1)
-    use_ac = (d_ac <= d_bd)[:, None]
-    t1 = np.where(use_ac, np.stack([a, b, c], 1), np.stack([a, b, d], 1))
-    t2 = np.where(use_ac, np.stack([a, c, d], 1), np.stack([b, c, d], 1))
-    return np.concatenate([t1, t2]).astype(np.int64)
-
-
-def _taubin(verts: np.ndarray, faces: np.ndarray, iters: int, lam: float, mu: float) -> np.ndarray:
-    """Taubin lambda/mu smoothing with the uniform Laplacian; verts (V, 3), faces (F, 3) -> (V, 3)."""
-    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    e = np.unique(e, axis=0)
-    deg = np.bincount(e.ravel(), minlength=len(verts)).astype(np.float64)[:, None]
-    out = verts.copy()
-    for _ in range(iters):
-        for f in (lam, mu):
-            s = np.zeros_like(out)
-            np.add.at(s, e[:, 0], out[e[:, 1]])
-            np.add.at(s, e[:, 1], out[e[:, 0]])
-            out = out + f * (s / deg - out)
-    return out
-
-
-def _patch_loop(quads: np.ndarray, patch: np.ndarray) -> np.ndarray:
-    """Boundary loop of a quad patch, in the patch's orientation.
-
-    Args:
-        quads: (Q, 4) all quads.
-        patch: (P,) indices into quads forming a disk.
-
-    Returns:
-        (L,) vertex indices; the patch quads traverse edge loop[j] -> loop[j+1].
-    """
-    q = quads[patch]
-    half = np.stack([q, np.roll(q, -1, axis=1)], axis=-1).reshape(-1, 2)
-    hs = {tuple(h) for h in half.tolist()}
-    nxt = {a: b for a, b in half.tolist() if (b, a) not in hs}
-    start = min(nxt)
-    loop = [start]
-    while nxt[loop[-1]] != start:
-        loop.append(nxt[loop[-1]])
-        if len(loop) > len(nxt):
-            raise ValueError("patch boundary is not a single loop")
-    return np.asarray(loop, dtype=np.int64)
-
-
 # --------------------------------------------------------------------------------------------------
-# proc_hand
+# rig, skinning and pose sampling
 
 _N_CHAINS = 5  # index, middle, ring, little, thumb
 _N_BONES = 2 + 3 * _N_CHAINS
@@ -459,7 +244,7 @@ def _build_hand_rig(p: dict) -> _HandRig:
     ys = np.concatenate([[0.0, ty0, ty0 + tw / 2, y_top_thumb], np.linspace(y_top_thumb, l_palm, 4)[1:]])
     zc = 0.5 * t_palm
     zs = np.array([0.0, zc - thick / 2, zc, zc + thick / 2, t_palm])
-    verts, quads, grid = _box_lattice(xs, ys, zs)
+    verts, quads, grid = box_lattice(xs, ys, zs)
     ny = len(ys) - 1
 
     beta = np.deg2rad(float(p["thumb_angle"]))
@@ -488,7 +273,7 @@ def _build_hand_rig(p: dict) -> _HandRig:
         if len(patch) != 4:
             raise ValueError(f"internal: finger patch {c} has {len(patch)} quads, expected 4")
         keep[patch] = False
-        loop = _patch_loop(quads, patch)
+        loop = patch_boundary_loop(quads, patch)
         center_idx = int(pts[1, 1])
         o = np.asarray(verts[center_idx], dtype=np.float64).copy()
         base = np.asarray([verts[i] for i in loop]) - o  # (8, 3)
@@ -540,11 +325,11 @@ def _build_hand_rig(p: dict) -> _HandRig:
     memb = np.zeros((len(ctrl), _N_CHAINS))
     lab = np.asarray(label)
     memb[lab >= 0, lab[lab >= 0]] = 1.0
-    fine, fquads = _catmull_clark(np.concatenate([ctrl, memb], axis=1), quads)
+    fine, fquads = catmull_clark(np.concatenate([ctrl, memb], axis=1), quads)
     rest, memb = fine[:, :3], fine[:, 3:]
-    faces = _triangulate(rest, fquads)
-    rest = _taubin(rest, faces, int(p["smooth_iters"]), float(p["taubin_lambda"]), float(p["taubin_mu"]))
-    faces = _triangulate(rest, fquads)
+    faces = triangulate_quads(rest, fquads)
+    rest = taubin_smooth(rest, faces, int(p["smooth_iters"]), float(p["taubin_lambda"]), float(p["taubin_mu"]))
+    faces = triangulate_quads(rest, fquads)
 
     origin, axis, joints = np.asarray(origin), np.asarray(axis), np.asarray(joints)
     # skinning weights
@@ -644,10 +429,10 @@ def _hand_capsule_ok(rig: _HandRig, angles: np.ndarray, clearance: float, n_samp
 def _sample_hand_angles(p: dict, rig: _HandRig, n: int, rng: np.random.Generator) -> np.ndarray:
     """Draw n collision-free poses; returns angles (n, 21) radians."""
     who = "make_proc_hand"
-    r = {k: np.deg2rad(_range(p, k, who)) for k in (
+    r = {k: np.deg2rad(check_range(p, k, who)) for k in (
         "mcp_range", "pip_range", "dip_range", "middle_abduction_range", "thumb_cmc_flex_range",
         "thumb_cmc_abduction_range", "thumb_mcp_range", "thumb_ip_range", "cup_range")}
-    spread = np.deg2rad(_range(p, "spread_range", who, nonneg=True))
+    spread = np.deg2rad(check_range(p, "spread_range", who, nonneg=True))
     sd_c, sd_j, sd_s = float(p["closure_spread"]), float(p["joint_noise"]), float(p["spread_noise"])
     out: list[np.ndarray] = []
     have = 0
@@ -698,212 +483,9 @@ def make_proc_hand(n_poses: int = 100, seed: int = 0, **geometry_kwargs) -> tupl
         vertices (N, V, 3) float64 and faces (F, 3) int64 (closed, outward oriented; V = 2514 and
         F = 5024 with the defaults).
     """
-    _check_n_poses(n_poses, "make_proc_hand")
-    p = _merge_kwargs(_HAND_DEFAULTS, geometry_kwargs, "make_proc_hand")
+    check_n_poses(n_poses, "make_proc_hand")
+    p = merge_kwargs(_HAND_DEFAULTS, geometry_kwargs, "make_proc_hand", __name__)
     rig = _build_hand_rig(p)
     rng = np.random.default_rng(seed)
     angles = _sample_hand_angles(p, rig, int(n_poses), rng)
     return _pose_hand(rig, angles), rig.faces.copy()
-
-
-# --------------------------------------------------------------------------------------------------
-# proc_cloth
-
-
-class _ClothRest(NamedTuple):
-    """Rest cone of the skirt.
-
-    Attributes:
-        theta: (A,) angle of each vertex column, radians.
-        h: (R,) height fraction of each ring, 0 at the waist, 1 at the hem.
-        faces: (F, 3) int64, F = 2 A (R - 1), outward oriented; vertex (i, j) has index i A + j.
-    """
-
-    theta: np.ndarray
-    h: np.ndarray
-    faces: np.ndarray
-
-
-def _cloth_rest(p: dict) -> _ClothRest:
-    """Rest grid of the skirt from merged cloth keywords ``p``."""
-    who = "make_proc_cloth"
-    n_a, n_r = int(p["n_around"]), int(p["n_rings"])
-    r_w, r_h, height = float(p["waist_radius"]), float(p["hem_radius"]), float(p["height"])
-    if n_a < 8 or n_r < 3 or min(r_w, r_h, height) <= 0:
-        raise UserInputError(
-            f"{who}: n_around={n_a}, n_rings={n_r}, waist_radius={r_w}, hem_radius={r_h}, height={height}; "
-            "need n_around >= 8, n_rings >= 3 and positive sizes"
-        )
-    t = np.linspace(0.0, 1.0, n_r)
-    ratio = r_h / r_w
-    # geometric grading: ring spacing proportional to the local circumference, so quads stay near square
-    h = t if abs(ratio - 1.0) < 1e-9 else (ratio**t - 1.0) / (ratio - 1.0)
-    theta = 2.0 * np.pi * np.arange(n_a) / n_a
-    i, j = (m.ravel() for m in np.meshgrid(np.arange(n_r - 1), np.arange(n_a), indexing="ij"))
-    v00, v01 = i * n_a + j, i * n_a + (j + 1) % n_a
-    v10, v11 = v00 + n_a, v01 + n_a
-    even = ((i + j) % 2 == 0)[:, None]  # alternate the diagonals (checkerboard) for a symmetric mesh
-    t1 = np.where(even, np.stack([v00, v10, v11], 1), np.stack([v00, v10, v01], 1))
-    t2 = np.where(even, np.stack([v00, v11, v01], 1), np.stack([v01, v10, v11], 1))
-    return _ClothRest(theta, h, np.concatenate([t1, t2]).astype(np.int64))
-
-
-class _ClothParams(NamedTuple):
-    """Per-pose parameters of the skirt (N poses, M fold modes, K bumps).
-
-    Attributes:
-        k: (N, M) fold wave numbers; w, phase, drift, ratio: (N, M) weight, phase, phase drift, radial ratio.
-        exponent: (N,) growth exponent of the folds toward the hem.
-        scale: (N,) fold scale s (the collision-free poses use c * s*).
-        flare: (N,) hem radius factor.
-        bump_theta, bump_h, bump_amp: (N, K) centres and amplitudes of the radial bumps.
-        twist: (N,) twist at the hem (radians). sway: (N, 2) hem offset.
-    """
-
-    k: np.ndarray
-    w: np.ndarray
-    phase: np.ndarray
-    drift: np.ndarray
-    ratio: np.ndarray
-    exponent: np.ndarray
-    scale: np.ndarray
-    flare: np.ndarray
-    bump_theta: np.ndarray
-    bump_h: np.ndarray
-    bump_amp: np.ndarray
-    twist: np.ndarray
-    sway: np.ndarray
-
-
-def _cloth_fields(p: dict, rest: _ClothRest, q: _ClothParams) -> tuple[np.ndarray, ...]:
-    """Unscaled fold fields and the base radius of every vertex.
-
-    Returns:
-        radius (N, R, A) rest radius with flare and bumps, fold_r and fold_t (N, R, A) radial and
-        tangential fold offsets for scale 1, ring radius (N, R, 1) without bumps.
-    """
-    th = rest.theta[None, None, :, None]  # (1, 1, A, 1)
-    h = rest.h[None, :, None, None]  # (1, R, 1, 1)
-    r_w = float(p["waist_radius"])
-    r_hem = float(p["hem_radius"]) * q.flare  # (N,)
-    ring = r_w + (r_hem[:, None] - r_w) * rest.h[None, :]  # (N, R)
-    arg = q.k[:, None, None, :] * th + q.phase[:, None, None, :] + q.drift[:, None, None, :] * h
-    # arg: (N, R, A, M)
-    amp = q.w * r_hem[:, None] / q.k  # (N, M) tangential amplitude at scale 1
-    grow = rest.h[None, :, None] ** q.exponent[:, None, None]  # (N, R, 1)
-    fold_t = grow * np.einsum("nram,nm->nra", np.sin(arg), amp)
-    fold_r = grow * np.einsum("nram,nm->nra", np.cos(arg), amp * q.ratio)
-    sw_t, sw_h = (float(x) for x in p["bump_width"])
-    dth = np.cos(rest.theta[None, None, :, None] - q.bump_theta[:, None, None, :]) - 1.0  # (N, 1, A, K)
-    dh = rest.h[None, :, None, None] - q.bump_h[:, None, None, :]  # (N, R, 1, K)
-    bumps = (q.bump_amp[:, None, None, :] * np.exp(dth / sw_t**2 - 0.5 * (dh / sw_h) ** 2)).sum(-1)
-    return ring[:, :, None] + bumps, fold_r, fold_t, ring[:, :, None]
-
-
-def _star_shaped(radius: np.ndarray, fold_r: np.ndarray, fold_t: np.ndarray, ring: np.ndarray, s: np.ndarray,
-                 min_frac: float) -> np.ndarray:
-    """Whether every ring stays star-shaped at fold scale s (N,): polar angle increasing, radius kept.
-
-    Args:
-        radius, fold_r, fold_t: (N, R, A) from :func:`_cloth_fields`; ring: (N, R, 1).
-        s: (N,) fold scale.
-        min_frac: smallest allowed radius as a fraction of the ring radius.
-
-    Returns:
-        (N,) bool.
-    """
-    rho = radius + s[:, None, None] * fold_r
-    dpsi = np.arctan2(s[:, None, None] * fold_t, rho)  # polar angle offset from the column angle
-    n_a = rho.shape[-1]
-    step = 2.0 * np.pi / n_a + np.roll(dpsi, -1, axis=-1) - dpsi  # (N, R, A) polar-angle increment
-    step = (step + np.pi) % (2.0 * np.pi) - np.pi
-    return (step > 0).all(axis=(1, 2)) & (rho >= min_frac * ring).all(axis=(1, 2))
-
-
-def _sample_cloth_params(p: dict, rest: _ClothRest, n: int, rng: np.random.Generator) -> _ClothParams:
-    """Draw n collision-free skirt poses (fold scale set to c times the critical scale)."""
-    who = "make_proc_cloth"
-    m = int(p["n_folds"])
-    k_lo, k_hi = (int(x) for x in p["fold_k_range"])
-    if m < 1 or k_lo < 1 or k_hi - k_lo + 1 < m:
-        raise UserInputError(
-            f"{who}: n_folds={m}, fold_k_range=({k_lo}, {k_hi}); need n_folds >= 1 distinct wave numbers "
-            ">= 1 in the range"
-        )
-    ks = np.argsort(rng.random((n, k_hi - k_lo + 1)), axis=1)[:, :m] + k_lo
-    u = {key: _range(p, key, who) for key in (
-        "fold_weight_range", "fold_ratio_range", "fold_exponent_range", "fold_strength_range", "flare_range",
-        "bump_range", "bump_h_range", "twist_range", "sway_range")}
-
-    def draw(key: str, shape) -> np.ndarray:
-        lo, hi = u[key]
-        return lo + (hi - lo) * rng.random(shape)
-
-    d = float(p["fold_drift"])
-    nb = int(p["n_bumps"])
-    q = _ClothParams(
-        k=ks.astype(np.float64), w=draw("fold_weight_range", (n, m)), phase=2 * np.pi * rng.random((n, m)),
-        drift=d * (2 * rng.random((n, m)) - 1), ratio=draw("fold_ratio_range", (n, m)),
-        exponent=draw("fold_exponent_range", n), scale=np.zeros(n), flare=draw("flare_range", n),
-        bump_theta=2 * np.pi * rng.random((n, nb)), bump_h=draw("bump_h_range", (n, nb)),
-        bump_amp=draw("bump_range", (n, nb)), twist=draw("twist_range", n), sway=draw("sway_range", (n, 2)),
-    )
-    strength = draw("fold_strength_range", n)
-    c_lo, c_hi = u["fold_strength_range"]
-    if not 0 <= c_lo <= c_hi < 1:
-        raise UserInputError(f"{who}: fold_strength_range=({c_lo}, {c_hi}); need 0 <= lo <= hi < 1")
-    min_frac = float(p["min_radius_frac"])
-    radius, fold_r, fold_t, ring = _cloth_fields(p, rest, q)
-    if not _star_shaped(radius, fold_r, fold_t, ring, np.zeros(n), min_frac).all():
-        raise UserInputError(
-            f"{who}: the bumps alone (bump_range={u['bump_range']}) make a ring non star-shaped or too thin; "
-            "lower bump_range or min_radius_frac"
-        )
-    lo, hi = np.zeros(n), np.ones(n)
-    for _ in range(60):  # double hi until every pose folds through (s* < hi); 60 doublings is far enough
-        ok = _star_shaped(radius, fold_r, fold_t, ring, hi, min_frac)
-        if not ok.any():
-            break
-        hi = np.where(ok, 2 * hi, hi)
-    for _ in range(40):  # bisection for the critical scale s*, relative precision 2^-40
-        mid = 0.5 * (lo + hi)
-        ok = _star_shaped(radius, fold_r, fold_t, ring, mid, min_frac)
-        lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
-    return q._replace(scale=strength * lo)
-
-
-def _pose_cloth(p: dict, rest: _ClothRest, q: _ClothParams) -> np.ndarray:
-    """Vertices (N, R * A, 3) of the skirt poses ``q``."""
-    radius, fold_r, fold_t, _ = _cloth_fields(p, rest, q)
-    rho = radius + q.scale[:, None, None] * fold_r  # (N, R, A)
-    tan = q.scale[:, None, None] * fold_t
-    ang = rest.theta[None, None, :] + q.twist[:, None, None] * rest.h[None, :, None] ** 2  # (N, R, A)
-    c, s = np.cos(ang), np.sin(ang)
-    hh = rest.h[None, :, None] ** 2
-    x = rho * c - tan * s + q.sway[:, 0, None, None] * hh
-    y = rho * s + tan * c + q.sway[:, 1, None, None] * hh
-    z = np.broadcast_to(-float(p["height"]) * rest.h[None, :, None], x.shape)
-    return np.stack([x, y, z], axis=-1).reshape(len(x), -1, 3)
-
-
-def make_proc_cloth(n_poses: int = 100, seed: int = 0, **geometry_kwargs) -> tuple[np.ndarray, np.ndarray]:
-    """Procedural skirt: an open cone with free-form folds, twist, sway, flare and bumps.
-
-    Args:
-        n_poses: number of poses N.
-        seed: seed of ``np.random.default_rng``; same arguments give bit-identical output.
-        **geometry_kwargs: geometry and pose-range settings, see the module docstring.
-
-    Returns:
-        vertices (N, V, 3) float64 and faces (F, 3) int64 (V = n_around * n_rings = 2640 and F = 5104 with
-        the defaults; a 2-manifold with two boundary loops).
-    """
-    _check_n_poses(n_poses, "make_proc_cloth")
-    p = _merge_kwargs(_CLOTH_DEFAULTS, geometry_kwargs, "make_proc_cloth")
-    rest = _cloth_rest(p)
-    rng = np.random.default_rng(seed)
-    q = _sample_cloth_params(p, rest, int(n_poses), rng)
-    return _pose_cloth(p, rest, q), rest.faces.copy()
-
-
-GENERATORS = {"proc_hand": make_proc_hand, "proc_cloth": make_proc_cloth}

@@ -19,6 +19,7 @@ stays stable as the store grows.
 from __future__ import annotations
 
 import os
+from enum import IntEnum
 from pathlib import Path
 from typing import NamedTuple
 
@@ -27,7 +28,14 @@ import numpy as np
 from neuralcol.errors import UserInputError
 from neuralcol.utils.faults import fault_point
 
-ORIGIN_UNIFORM, ORIGIN_PROJECTED, ORIGIN_SEARCHED = 0, 1, 2  # uniform rows, active picks, boundary search
+
+class Origin(IntEnum):
+    """Where a D_c row came from (the store's ``origin`` column, int8)."""
+
+    UNIFORM = 0  # a uniform sample of the box Z
+    PROJECTED = 1  # picked by the active acquisition (projected or most uncertain)
+
+
 VAL_EVERY = 5  # row ids with id % 5 == 4 are validation rows (20 %)
 
 

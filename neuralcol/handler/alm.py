@@ -11,7 +11,7 @@ and, if the violation ``max(0, c_b)`` did not shrink below ``shrink`` times its 
 ``mu_b <- min(mu_growth mu_b, mu_max)``. A problem is done when ``c_b <= feas_tol`` and its code moved less than
 ``tol`` (relative to the box size) in the last outer iteration; ``max_outer`` caps the outer iterations.
 The inner solver is a batched L-BFGS with one curvature history and one line search per problem
-(:mod:`neuralcol.handling.lbfgs`). (Adam on the sum of the problems was tried first: with the penalty grown
+(:mod:`neuralcol.handler.lbfgs`). (Adam on the sum of the problems was tried first: with the penalty grown
 to 1e3-1e4 it oscillated around the boundary and missed the analytic projection by up to 0.6 in
 ``tests/test_handler.py``; ``torch.optim.LBFGS`` on the sum shares one line search across problems and left
 errors of 1e-3.)
@@ -31,7 +31,7 @@ from typing import NamedTuple
 
 import torch
 
-from neuralcol.handling.lbfgs import batched_lbfgs
+from neuralcol.handler.lbfgs import batched_lbfgs
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ def alm_resolve(objective: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
 
     Args:
         objective: ``(z, idx) -> (len(idx),)``: E of the problems ``idx`` (indices into the batch) at the raw
-            codes z (len(idx), D), e.g. :class:`~neuralcol.handling.objectives.LatentObjective`.
+            codes z (len(idx), D), e.g. :class:`~neuralcol.handler.objectives.LatentObjective`.
         logit_fn: raw codes (B, D) -> (B,) the detector's collision logit.
         z_start: (B, D) starting codes (usually Z_user).
         box_lo, box_hi: (D,) the latent box.

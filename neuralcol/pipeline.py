@@ -1,0 +1,137 @@
+"""The run context: one run's chain, built once from its config.
+
+data set -> ACAP features -> latent space -> exact labelers -> label pool -> oracle. ``experiments.run``, the
+diagnosis, the benchmarks and the studies all take these pieces from a :class:`RunContext` instead of assembling
+them; each piece is built on first use and kept. The stages themselves (``neuralcol/stages/``) receive what they
+need as arguments. File names come from :mod:`neuralcol.rundir`.
+
+    ctx = RunContext(cfg, run_dir)
+    ds, feats = ctx.dataset, ctx.features
+    space = ctx.latent_space().space
+    with ctx.pool(ctx.sample_labeler()) as pool:
+        oracle = ctx.oracle(pool)
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from neuralcol.collision.backends import build_labeler
+from neuralcol.collision.pool import LabelPool
+from neuralcol.data.features import DatasetFeatures, dataset_features
+from neuralcol.errors import UserInputError
+from neuralcol.nn.latent_space import LatentSpace
+from neuralcol.rundir import CacheDir, RunDir
+from neuralcol.samples.cache import samples_cache_dir
+from neuralcol.samples.oracle import LatentOracle
+from neuralcol.stages.autoencoder import train_or_load_latent_space
+
+
+class LatentStage(NamedTuple):
+    """The latent space of a run: the space, the autoencoder's report (``cache_key`` names the caches of its
+    labeled samples) and whether it was loaded from the cache."""
+
+    space: LatentSpace
+    report: dict
+    from_cache: bool
+
+
+class RunContext:
+    """One run's pipeline pieces, built from ``cfg`` on first use.
+
+    Args:
+        cfg: a composed ``experiments.run`` config (``conf/config.yaml``).
+        run_dir: the run directory (None: pieces that need none only).
+    """
+
+    def __init__(self, cfg: DictConfig, run_dir: str | Path | None = None):
+        self.cfg = cfg
+        self.run_dir = None if run_dir is None else RunDir(run_dir)
+        self.cache = CacheDir(cfg.paths.cache_dir)
+        self._latent: LatentStage | None = None
+
+    # ------------------------------------------------------------------ data
+    @cached_property
+    def dataset(self):
+        """The data set (``dataset.source``), loaded and validated."""
+        return instantiate(self.cfg.dataset.source)
+
+    @cached_property
+    def features(self) -> DatasetFeatures:
+        """ACAP features of the data set (cached under ``<cache>/features``)."""
+        acap_cfg = OmegaConf.to_container(self.cfg.acap, resolve=True)
+        norm_cfg = acap_cfg.pop("normalizer")
+        return dataset_features(self.dataset, self.cfg.dataset.reference_index, acap_cfg, norm_cfg,
+                                cache_dir=self.cache.features)
+
+    @property
+    def faces(self) -> np.ndarray:
+        """(F, 3) int triangles of the data set's topology."""
+        return self.dataset.faces.numpy()
+
+    @property
+    def rest(self) -> np.ndarray:
+        """(V, 3) float64 rest mesh (the data set's reference mesh)."""
+        return self.dataset.vertices[self.cfg.dataset.reference_index].numpy().astype("float64")
+
+    # ------------------------------------------------------------------ latent space
+    def latent_space(self, logger_factory=None) -> LatentStage:
+        """The bilevel autoencoder's latent space, trained or loaded from the cache (built once).
+
+        ``logger_factory``: ``stage -> Lightning logger`` for the autoencoder's training (None: no logging).
+        """
+        if self._latent is None:
+            space, report, cached = train_or_load_latent_space(
+                self.dataset, self.features, self.cfg.autoencoder, self.cfg.dataset.latent,
+                int(self.cfg.autoencoder_seed), self.cache.path, logger_factory)
+            self._latent = LatentStage(space, report, cached)
+        return self._latent
+
+    def use_latent_space_file(self, path: str | Path) -> LatentStage:
+        """Use the latent space saved at ``path`` (a ``latent_space.pt`` of the cache) instead of training one."""
+        path = Path(path)
+        if not path.is_file():
+            raise UserInputError(f"{path}: no such file; give a latent_space.pt of "
+                                 f"{self.cache.autoencoder('<key>')}/")
+        space = LatentSpace.load(path)
+        if space.rest_vertices.shape[0] != self.dataset.n_vertices:
+            raise UserInputError(f"{path}: {space.rest_vertices.shape[0]} vertices, the data set "
+                                 f"{self.cfg.dataset.name} has {self.dataset.n_vertices}")
+        return self.use_latent_space(space, {**space.meta, "cache_key": path.parent.name})
+
+    def use_latent_space(self, space: LatentSpace, report: dict) -> LatentStage:
+        """Use an already loaded latent space (``report["cache_key"]`` names its caches)."""
+        self._latent = LatentStage(space, report, True)
+        return self._latent
+
+    @property
+    def space(self) -> LatentSpace:
+        return self.latent_space().space
+
+    # ------------------------------------------------------------------ labels
+    def labeler(self, partition: np.ndarray | None = None):
+        """The exact labeler of ``labeling`` for the data set's topology (PD_i over ``partition``)."""
+        return build_labeler(self.cfg.labeling, self.faces, self.rest, partition=partition)
+
+    def sample_labeler(self):
+        """The labeler of decoded samples: PD_i over the latent space's sub-domains."""
+        return self.labeler(partition=self.space.partition.numpy())
+
+    def pool(self, labeler, **overrides) -> LabelPool:
+        """A label pool (``labeling.pool``, with ``overrides``) over ``labeler``; use it as a context manager."""
+        kw = {**OmegaConf.to_container(self.cfg.labeling.pool, resolve=True), **overrides}
+        return LabelPool(labeler, **kw)
+
+    def oracle(self, pool: LabelPool) -> LatentOracle:
+        """Codes -> decoded meshes -> exact labels, through ``pool``."""
+        return LatentOracle(self.space, pool)
+
+    def samples_dir(self, labeler) -> Path:
+        """``<cache>/collision/<key>``: the labeled samples of this latent space and labeler."""
+        return samples_cache_dir(self.cache.path, self.latent_space().report["cache_key"], labeler)

@@ -1,0 +1,133 @@
+"""The package's layers point down only (issue 28): read every import in neuralcol/ (lazy ones too) and check
+that no module imports a package above its own, no private name crosses a package, neuralcol never imports the
+entry points, and the module import graph has no cycle."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1] / "neuralcol"
+
+# lowest first; a module may import its own package and the packages of lower layers
+LAYERS = [
+    {"errors", "rundir"},
+    {"utils"},
+    {"geometry"},
+    {"collision", "metrics"},
+    {"nn"},
+    {"data"},
+    {"samples"},
+    {"active", "handler"},
+    {"lit", "diagnose"},
+    {"stages"},
+    {"pipeline"},
+    {"api", "__init__"},
+]
+LAYER = {pkg: i for i, group in enumerate(LAYERS) for pkg in group}
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _package(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def _imports(path: Path) -> list[tuple[str, list[str], int]]:
+    """(imported module, imported names, line) of every import statement in the file, lazy ones included."""
+    module = _module_name(path)
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = module.split(".") if path.name == "__init__.py" else module.split(".")[:-1]
+                base = base[:len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            out.append((target, [a.name for a in node.names], node.lineno))
+        elif isinstance(node, ast.Import):
+            out += [(a.name, [], node.lineno) for a in node.names]
+    return out
+
+
+def _graph() -> dict[str, list[tuple[str, list[str], int, Path]]]:
+    graph = {}
+    for path in sorted(ROOT.rglob("*.py")):
+        graph[_module_name(path)] = [(t, names, line, path) for t, names, line in _imports(path)]
+    return graph
+
+
+def test_every_package_has_a_layer():
+    packages = {_package(m) for m in _graph()}
+    assert packages <= set(LAYER), f"add {sorted(packages - set(LAYER))} to LAYERS in {__file__}"
+
+
+def test_imports_point_down_and_stay_public():
+    graph, problems = _graph(), []
+    for module, imports in graph.items():
+        pkg = _package(module)
+        for target, names, line, path in imports:
+            where = f"{path.relative_to(ROOT.parent)}:{line}"
+            top = target.split(".")[0]
+            if top in ("experiments", "bench", "research", "tests"):
+                problems.append(f"{where}: neuralcol imports the entry point {target}")
+            if top != "neuralcol":
+                continue
+            tpkg = _package(target) if target != "neuralcol" else "__init__"
+            if tpkg == pkg:
+                continue
+            if LAYER[tpkg] >= LAYER[pkg]:
+                problems.append(f"{where}: {pkg} (layer {LAYER[pkg]}) imports {target} (layer {LAYER[tpkg]})")
+            private = [n for n in names if n.startswith("_")] + [p for p in target.split(".")[1:] if p.startswith("_")]
+            if private:
+                problems.append(f"{where}: private {private} of another package ({target})")
+    assert not problems, "\n".join(problems)
+
+
+def test_no_import_cycle():
+    graph = _graph()
+    modules = set(graph)
+    edges = {m: sorted({t if t in modules else t.rsplit(".", 1)[0] for t, *_ in imps
+                        if t.startswith("neuralcol")} & modules - {m}) for m, imps in graph.items()}
+    # a package imports its parent's __init__ only through the import system: drop parent-package edges
+    edges = {m: [t for t in ts if not m.startswith(t + ".")] for m, ts in edges.items()}
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(m: str) -> list[str] | None:
+        state[m] = 1
+        stack.append(m)
+        for t in edges[m]:
+            if state.get(t) == 1:
+                return stack[stack.index(t):] + [t]
+            if t not in state:
+                cycle = visit(t)
+                if cycle:
+                    return cycle
+        stack.pop()
+        state[m] = 2
+        return None
+
+    for m in sorted(modules):
+        if m not in state:
+            cycle = visit(m)
+            assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_the_checker_sees_a_violation(tmp_path):
+    """The import reader resolves relative and lazy imports (so the checks above can fail)."""
+    f = tmp_path / "neuralcol" / "geometry" / "x.py"
+    f.parent.mkdir(parents=True)
+    f.write_text("def f():\n    from ..stages.detector import _private\n    import neuralcol.api\n")
+    global ROOT
+    saved, ROOT = ROOT, tmp_path / "neuralcol"
+    try:
+        found = _imports(f)
+    finally:
+        ROOT = saved
+    assert ("neuralcol.stages.detector", ["_private"], 2) in found and ("neuralcol.api", [], 3) in found
