@@ -25,7 +25,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP)  ## create .venv with a CPU torch and install neuralcol (editable, dev and export extras)
 
 lint: $(STAMP)  ## ruff
-	$(BIN)/ruff check neuralcol experiments tests bench
+	$(BIN)/ruff check neuralcol experiments tests bench research
 
 # test files run on this many pytest workers (pytest-xdist; one file per worker, one thread per worker:
 # tests/conftest.py). TEST_WORKERS=0 runs them in this process.

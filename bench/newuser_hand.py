@@ -20,7 +20,7 @@ from pathlib import Path
 
 import torch
 
-from neuralcol.data.procedural import make_proc_hand
+from neuralcol.data.procedural.hand import make_proc_hand
 from neuralcol.geometry.mesh_io import write_meshes
 
 GEOMETRY = {"rings_per_finger": 7, "finger_lengths": (0.78, 0.95, 0.9, 0.68), "finger_gap": 0.02,

@@ -18,17 +18,17 @@ import sys
 from pathlib import Path
 
 from neuralcol.errors import UserInputError
-from neuralcol.stages.model_size import LATENT_RULES, choose_from_records, run_record
+from neuralcol.stages.model_size import LATENT_RULES, choose_from_records, size_record
 from neuralcol.utils.cli import report_user_errors
 
 
 def sweep_records(sweep: Path) -> list[dict]:
-    """Records (:func:`~neuralcol.stages.model_size.run_record`) of the finished runs under ``sweep``."""
+    """Records (:func:`~neuralcol.stages.model_size.size_record`) of the finished runs under ``sweep``."""
     runs = sorted(p.parent for p in sweep.glob("*/metrics.json"))
     if not runs:
         raise UserInputError(f"{sweep}: no finished run (no <run>/metrics.json); give the sweep directory of a "
                              "size sweep (python -m experiments.run -m experiment=size_<dataset>)")
-    return [run_record(json.loads((r / "metrics.json").read_text()), r.name) for r in runs]
+    return [size_record(json.loads((r / "metrics.json").read_text()), r.name) for r in runs]
 
 
 @report_user_errors

@@ -27,11 +27,35 @@ import os
 from pathlib import Path
 
 
+class _File:
+    """A path inside the directory of the object it is read from (``RunDir.metrics`` -> ``<run dir>/metrics.json``)."""
+
+    def __init__(self, *parts: str):
+        self.parts = parts
+
+    def __get__(self, obj, owner=None):
+        return self if obj is None else obj.path.joinpath(*self.parts)
+
+
 class RunDir:
     """The files of one run directory (paths only; nothing is created)."""
 
-    METRICS = "metrics.json"  # written last: marks a finished run (neuralcol.utils.resume)
-    RESUMED_IN = "resumed_in.txt"
+    config = _File(".hydra", "config.yaml")
+    overrides = _File(".hydra", "overrides.yaml")
+    metrics = _File("metrics.json")  # written last: marks a finished run (neuralcol.utils.resume)
+    resumed_in = _File("resumed_in.txt")  # an interrupted run that was continued elsewhere names that directory
+    detector = _File("detector.pt")
+    mesh_detector = _File("mesh_detector.pt")
+    detector_rounds = _File("detector_rounds.json")
+    dc = _File("dc.h5")
+    checkpoint = _File("checkpoints", "detector.ckpt")
+    test_predictions = _File("test_predictions.npz")
+    realistic_predictions = _File("realistic_predictions.npz")
+    handling = _File("handling")
+    examples = _File("examples")
+    round_examples = _File("round_examples")
+    subdomains_png = _File("subdomains.png")
+    tensorboard = _File("tensorboard")
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
@@ -45,70 +69,6 @@ class RunDir:
     def __repr__(self) -> str:
         return f"RunDir({self.path})"
 
-    @property
-    def config(self) -> Path:
-        return self.path / ".hydra" / "config.yaml"
-
-    @property
-    def overrides(self) -> Path:
-        return self.path / ".hydra" / "overrides.yaml"
-
-    @property
-    def metrics(self) -> Path:
-        return self.path / self.METRICS
-
-    @property
-    def resumed_in(self) -> Path:
-        return self.path / self.RESUMED_IN
-
-    @property
-    def detector(self) -> Path:
-        return self.path / "detector.pt"
-
-    @property
-    def mesh_detector(self) -> Path:
-        return self.path / "mesh_detector.pt"
-
-    @property
-    def detector_rounds(self) -> Path:
-        return self.path / "detector_rounds.json"
-
-    @property
-    def dc(self) -> Path:
-        return self.path / "dc.h5"
-
-    @property
-    def checkpoint(self) -> Path:
-        return self.path / "checkpoints" / "detector.ckpt"
-
-    @property
-    def test_predictions(self) -> Path:
-        return self.path / "test_predictions.npz"
-
-    @property
-    def realistic_predictions(self) -> Path:
-        return self.path / "realistic_predictions.npz"
-
-    @property
-    def handling(self) -> Path:
-        return self.path / "handling"
-
-    @property
-    def examples(self) -> Path:
-        return self.path / "examples"
-
-    @property
-    def round_examples(self) -> Path:
-        return self.path / "round_examples"
-
-    @property
-    def subdomains_png(self) -> Path:
-        return self.path / "subdomains.png"
-
-    @property
-    def tensorboard(self) -> Path:
-        return self.path / "tensorboard"
-
     def is_finished(self) -> bool:
         return self.metrics.is_file()
 
@@ -116,15 +76,13 @@ class RunDir:
 class CacheDir:
     """The folders of the cache directory (``paths.cache_dir``)."""
 
+    features = _File("features")
+
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
 
     def __repr__(self) -> str:
         return f"CacheDir({self.path})"
-
-    @property
-    def features(self) -> Path:
-        return self.path / "features"
 
     def autoencoder(self, key: str) -> Path:
         return self.path / "autoencoders" / str(key)

@@ -112,13 +112,15 @@ TUBE_LATENT = {"n_components": 2, "level2_dim": 2}
 @pytest.fixture(scope="session")
 def tube_space(tube_dataset, tmp_path_factory):
     """A small trained latent space of the tubes: (space, report, features, config, cache dir)."""
+    from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
     from neuralcol.data.features import dataset_features
     from neuralcol.stages.autoencoder import train_or_load_latent_space
 
     feats = dataset_features(tube_dataset, 0)
-    tiny = OmegaConf.load(ROOT / "conf" / "autoencoder" / "tiny.yaml")
+    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3"):  # autoencoder=tiny, its defaults composed
+        tiny = compose("config", overrides=["autoencoder=tiny"]).autoencoder
     cfg = OmegaConf.merge(tiny, {"level1": {"epochs": 150}, "level2": {"epochs": 100}, "val_fraction": 0.25})
     cache = tmp_path_factory.mktemp("ae_cache")
     space, report, cached = train_or_load_latent_space(tube_dataset, feats, cfg, TUBE_LATENT, 0, cache)

@@ -58,7 +58,8 @@ class BallOracle:
 
 
 def _det_cfg(**over):
-    cfg = {"net": {"state_dim": 16, "hidden": 32, "normalize_inputs": True},
+    cfg = {"net": {"_target_": "neuralcol.nn.detector.detector_for_space", "_partial_": True, "state_dim": 16,
+                   "hidden": 32, "normalize_inputs": True},
            "loss": {"w_pd": 5.0, "w_pdsum": 0.2, "w_r": 2.0, "w_ce": 2.0, "margin": 0.01, "temperature": 0.1},
            "targets": {"pd_clip": 3.0}, "n_init": 200, "n_aug": 100, "max_rounds": 2,
            "stop": {"kneedle": False, "min_points": 5, "sensitivity": 1.0}, "test_size": 500, "test_seed": 99,
@@ -66,19 +67,35 @@ def _det_cfg(**over):
            "finetune_batch_size": 64, "newton": {"eps_z": 1e-7, "max_iter": 30, "damping": 1e-6, "max_step": 0.25},
            "val_every": 1, "select_best_val": True, "accelerator": "cpu", "progress_bar": False}
     cfg.update(over)
+    # the components conf/detector/cpu.yaml builds with Hydra, with this dict's settings
+    cfg.update({"optimizer": {"_target_": "torch.optim.Adam", "_partial_": True},
+                "rounds": {"_target_": "neuralcol.active.rounds.RoundCallback", "_partial_": True,
+                           "n_aug": cfg["n_aug"], "max_rounds": cfg["max_rounds"],
+                           "stop_at_elbow": cfg["stop"]["kneedle"],
+                           "elbow_min_points": cfg["stop"]["min_points"],
+                           "elbow_sensitivity": cfg["stop"]["sensitivity"],
+                           "select_best_val": cfg["select_best_val"]},
+                "trainer": {"_target_": "lightning.Trainer", "_partial_": True, "accelerator": cfg["accelerator"],
+                            "devices": 1, "check_val_every_n_epoch": cfg["val_every"],
+                            "enable_progress_bar": cfg["progress_bar"], "reload_dataloaders_every_n_epochs": 1,
+                            "enable_checkpointing": False, "num_sanity_val_steps": 0, "enable_model_summary": False,
+                            "log_every_n_steps": 1}})
     return cfg
 
 
 def _method(name, det):
     scratch = {"epochs": det["epochs"], "lr": det["lr"], "batch_size": det["batch_size"]}
     tune = {"epochs": det["finetune_epochs"], "lr": det["finetune_lr"], "batch_size": det["finetune_batch_size"]}
-    return {"supv": {"name": "supv", "acquisition": "uniform", "use_boundary_set": False, "w_b": 0.0,
+    uniform = {"_target_": "neuralcol.active.acquisition.UniformAcquisition", "_partial_": True}
+    projected = {"_target_": "neuralcol.active.acquisition.ProjectedAcquisition", "_partial_": True,
+                 "projected_fraction": 0.5, "newton": det["newton"]}
+    return {"supv": {"name": "supv", "acquisition": uniform, "use_boundary_set": False, "w_b": 0.0,
                      "projected_fraction": 0.0, "bootstrap": {**scratch, "reinit": False},
                      "update": {**scratch, "reinit": True}},
-            "supv_bd": {"name": "supv_bd", "acquisition": "uniform", "use_boundary_set": True, "w_b": 0.5,
+            "supv_bd": {"name": "supv_bd", "acquisition": uniform, "use_boundary_set": True, "w_b": 0.5,
                         "projected_fraction": 0.0, "bootstrap": {**scratch, "reinit": False},
                         "update": {**scratch, "reinit": True}},
-            "active": {"name": "active", "acquisition": "projected", "use_boundary_set": True, "w_b": 0.5,
+            "active": {"name": "active", "acquisition": projected, "use_boundary_set": True, "w_b": 0.5,
                        "projected_fraction": 0.5, "bootstrap": {**scratch, "reinit": False},
                        "update": {**tune, "reinit": False}}}[name]
 

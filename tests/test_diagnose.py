@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from test_active import BallOracle, D, K, _train
+from test_active import BallOracle, D, K, _det_cfg, _train
 
 from neuralcol.active.rounds import Schedule
-from neuralcol.diagnose.curve import epoch_lr, learning_curve, needed_size, take_rows
+from neuralcol.diagnose.curve import learning_curve, needed_size, take_rows
 from neuralcol.diagnose.latent import decoder_report, label_roughness, plausibility_report, reconstruction_report
 from neuralcol.metrics.projection import boundary_shares, projection_quality
 from neuralcol.nn.detector import CollisionDetector
@@ -129,6 +129,8 @@ def _ball_rows(n, seed):
 BALL_DET = {"net": {"state_dim": 16, "hidden": 32}, "targets": {"pd_clip": 0.25, "pd_floor": -0.25},
             "loss": {"w_pd": 5.0, "w_pdsum": 0.2, "w_r": 2.0, "w_ce": 2.0, "margin": 0.01, "temperature": 0.1},
             "epochs": 30, "lr": 1e-2, "batch_size": 64}
+# the training components (optimizer, round callback, Trainer) as conf/detector builds them
+BALL_DET.update({k: v for k, v in _det_cfg().items() if k in ("optimizer", "rounds", "trainer")})
 
 
 def _build_ball_detector(net: dict) -> CollisionDetector:
@@ -148,30 +150,6 @@ def test_learning_curve_on_the_ball():
     assert final["test"]["accuracy"] > final["test"]["majority_accuracy"] + 0.1, "the ball is learnable"
     assert 0 <= final["epoch"] < 30 and 0.5 < final["train_accuracy"] <= 1
     assert len(take_rows(rows, 7).z) == 7
-
-
-def test_epoch_lr_constant_and_cosine():
-    assert [epoch_lr(1e-3, e, 10) for e in (0, 5, 9)] == [1e-3] * 3
-    cos = [epoch_lr(1e-3, e, 4, "cosine") for e in range(4)]
-    # (1 + cos(pi e / 4)) / 2 for e = 0..3: 1, 0.854, 0.5, 0.146 (never 0: the last epoch still trains)
-    assert np.allclose(cos, 1e-3 * np.array([1.0, 0.8535534, 0.5, 0.1464466]))
-    with pytest.raises(ValueError, match="lr schedule"):
-        epoch_lr(1e-3, 0, 4, "step")
-
-
-def test_curve_variants_set_schedule_epochs_and_patience():
-    rows, test = _ball_rows(400, 0), _ball_rows(1000, 1)
-    variants = [{"name": "plain"}, {"name": "cosine", "lr_schedule": "cosine"},
-                {"name": "long", "epochs": 400, "patience": 2}, {"name": "ema", "ema_epochs": 2}]
-    recs = {r["model"]: r for r in learning_curve(rows, test, [400], variants, _build_ball_detector, 0.5, BALL_DET,
-                                                  [0], -np.ones(D), np.ones(D), references=False,
-                                                  log=lambda *_: None)}
-    assert recs["plain"]["epochs_run"] == recs["cosine"]["epochs_run"] == 30
-    keys = ("val_accuracy", "train_accuracy", "epoch", "test")
-    assert [recs["plain"][k] for k in keys] != [recs["cosine"][k] for k in keys], "the schedule changes the training"
-    assert [recs["plain"][k] for k in keys] != [recs["ema"][k] for k in keys], "the averaged weights are scored"
-    # patience: stops 2 epochs after its best validation epoch, long before 400
-    assert recs["long"]["epochs_run"] == recs["long"]["epoch"] + 3 < 400
 
 
 def test_needed_size_extrapolates_a_log_linear_curve():
@@ -272,8 +250,8 @@ def test_uncertain_start_selects_the_codes_nearest_the_level_set(tmp_path):
 
 
 def test_ablation_bench_configs_compose():
-    """Every variant of `python -m bench.diagnosis_ablations` composes against conf/ (keys exist, no `+` needed)."""
-    from bench.diagnosis_ablations import LATENT_VARIANTS, _cfg
+    """Every variant of `python -m research.diagnosis_ablations` composes against conf/ (keys exist, no `+` needed)."""
+    from research.diagnosis_ablations import LATENT_VARIANTS, _cfg
 
     for name, overrides in LATENT_VARIANTS.items():
         cfg = _cfg("proc_hand", list(overrides))
@@ -287,7 +265,7 @@ def _write_curve(folder: Path, records: list[dict]) -> None:
 
 
 def test_compare_curves_pairs_variants_by_size_and_seed(tmp_path, capsys):
-    from bench.compare_curves import main
+    from experiments.compare_curves import main
 
     def rec(model, size, seed, acc, fnr):
         return {"model": model, "size": size, "seed": seed, "epochs_run": 100, "test": {"accuracy": acc, "fnr": fnr}}

@@ -1,4 +1,4 @@
-"""python-fcl backend (``labeling.backend=fcl``): the paper's labels with ExactLabeler's interface."""
+"""python-fcl backend (``labeling=fcl``): the paper's labels with ExactLabeler's interface."""
 
 from __future__ import annotations
 
@@ -157,17 +157,18 @@ def test_pickles_and_labels_the_same(scape_fcl):
 
 # ------------------------------------------------------------------------------------------ plumbing
 def test_build_labeler_from_the_labeling_config_and_label_pool():
-    from omegaconf import OmegaConf
+    from hydra import compose, initialize_config_dir
 
-    cfg = OmegaConf.load(ROOT / "conf" / "labeling" / "default.yaml")
-    cfg.backend = "fcl"
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["labeling=fcl"]).labeling  # conf/labeling/fcl.yaml
     rest, faces, part, _ = _spheres([0.0, 6.0])
     lab = build_labeler(cfg, faces, rest, partition=part)
     assert isinstance(lab, FCLLabeler) and lab.label_kind == "fcl"
     assert lab.tau == pytest.approx(cfg.labeler.touch_tol * lab.ell)
     assert lab.cap == pytest.approx(cfg.labeler.clearance_cap * lab.diag)
     assert lab.eps == pytest.approx(cfg.labeler.boundary_eps * lab.diag)
-    lab2 = build_labeler({"backend": "fcl", "labeler": {"clearance_cap": 0.05, "touch_tol": 0.0}}, faces, rest)
+    lab2 = build_labeler({"backend": "fcl", "labeler": {"_target_": "neuralcol.collision.fcl_labeler.FCLLabeler",
+                                                        "clearance_cap": 0.05, "touch_tol": 0.0}}, faces, rest)
     assert lab2.cap == pytest.approx(0.05 * lab2.diag) and lab2.tau == 0.0 and lab2.n_parts == 1
     batch = np.stack([_spheres([0.0, d])[0] for d in (1.7, 2.1, 2.6)])
     with LabelPool(lab, workers=0, progress=False) as pool:

@@ -1,10 +1,11 @@
-"""Batched Warp labeler (``labeling.backend = gpu``) against the exact CPU labeler, on Warp's CPU device: same
+"""Batched Warp labeler (``labeling=gpu``) against the exact CPU labeler, on Warp's CPU device: same
 verdicts and pair counts, PD and PD_i within 1e-6 of the bounding-box diagonal, on the fixtures of
 tests/test_labeler.py and tests/test_labeler_scaling.py, batch order, LabelPool and build_labeler."""
 
 from __future__ import annotations
 
 import pickle
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,13 +19,14 @@ from neuralcol.collision.pool import LabelPool
 
 wp = pytest.importorskip("warp")
 
-from neuralcol.collision.gpu_labeler import BatchedLabeler  # noqa: E402
+from neuralcol.collision.warp_labeler import WarpLabeler  # noqa: E402
 
+ROOT = Path(__file__).resolve().parents[1]
 DEVICE = "cpu"  # Warp's CPU backend: what CI runs; the CUDA test below runs where a GPU is
 
 
 def _pair(faces, rest, device=DEVICE, **kw):
-    return BatchedLabeler(faces, rest, device=device, **kw), ExactLabeler(faces, rest, **kw)
+    return WarpLabeler(faces, rest, device=device, **kw), ExactLabeler(faces, rest, **kw)
 
 
 def assert_agree(gl, ref, meshes, labels: Labels | None = None) -> Labels:
@@ -54,7 +56,7 @@ def test_small_meshes_adjacency_and_one_vertex_folds():
     assert not got.collides.any()  # edge neighbours never count
 
     lab, tip = _one_vertex_fan(0.3)
-    gl = BatchedLabeler(lab.faces, lab.rest, device=DEVICE)
+    gl = WarpLabeler(lab.faces, lab.rest, device=DEVICE)
     touching = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, 0.2, 0.5], [-0.8, -0.9, 0.4]], float)
     got = assert_agree(gl, lab, [tip, touching, lab.rest])
     assert got.collides.tolist() == [True, False, False] and got.n_pairs[0] == 1
@@ -178,7 +180,7 @@ def test_scape_deformed_and_subdivided(scape):
     flat = trimesh.creation.box(extents=(1, 1, 1))
     fv, ff = trimesh.remesh.subdivide_to_size(flat.vertices, flat.faces, max_edge=0.1)
     for v, f in ((v1, f1), (fv, ff)):
-        gl = BatchedLabeler(f, v, device=DEVICE)
+        gl = WarpLabeler(f, v, device=DEVICE)
         lb = gl.label(v)
         assert not lb.collides and lb.n_pairs == 0 and lb.pd < 0
 
@@ -202,13 +204,13 @@ def test_mixed_batch_keeps_order_and_slices():
     shuffled = gl.label_batch(batch[perm])
     for name in Labels._fields:
         np.testing.assert_array_equal(getattr(shuffled, name), getattr(got, name)[perm])
-    small = BatchedLabeler(faces, rest, partition=part, device=DEVICE, max_batch=4)  # 3 launches: 4 + 4 + 1
+    small = WarpLabeler(faces, rest, partition=part, device=DEVICE, max_batch=4)  # 3 launches: 4 + 4 + 1
     for name in Labels._fields:
         np.testing.assert_array_equal(getattr(small.label_batch(batch), name), getattr(got, name))
     # one pose alone, and the same pose inside the batch: identical
     one = gl.label(batch[2])
     assert one.collides == got.collides[2] and one.pd == got.pd[2]
-    tight = BatchedLabeler(faces, rest, partition=part, device=DEVICE)
+    tight = WarpLabeler(faces, rest, partition=part, device=DEVICE)
     tight._min_pair_list = 1  # the counted-pair list overflows: the launch is repeated with room for all
     assert got.n_pairs.sum() > 16 * len(batch)
     for name in Labels._fields:
@@ -226,15 +228,22 @@ def test_mixed_batch_keeps_order_and_slices():
     assert_agree(gl, ref, list(batch[:3]))
 
 
+def _labeling(overrides):
+    """The ``labeling`` group of ``conf/config.yaml`` composed with ``overrides``."""
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        return compose(config_name="config", overrides=overrides).labeling
+
+
 def test_build_labeler_pool_and_pickle():
     from neuralcol.collision.backends import build_labeler
 
     faces, rest, part, batch = _mixed_batch()
-    cfg = {"backend": "gpu", "device": "cpu", "labeler": {"touch_tol": 1e-6, "clearance_cap": 0.01,
-                                                          "boundary_eps": 1e-4}}
-    gl = build_labeler(cfg, faces, rest, partition=part)
-    assert isinstance(gl, BatchedLabeler) and gl.batched and gl.label_kind == "exact" and gl.device == "cpu"
-    ref = build_labeler({**cfg, "backend": "cpu"}, faces, rest, partition=part)
+    gpu = _labeling(["labeling=gpu", "labeling.labeler.device=cpu"])  # conf/labeling/gpu.yaml on Warp's CPU device
+    gl = build_labeler(gpu, faces, rest, partition=part)
+    assert isinstance(gl, WarpLabeler) and gl.batched and gl.label_kind == "exact" and gl.device == "cpu"
+    ref = build_labeler(_labeling([]), faces, rest, partition=part)
     assert (gl.n_vertices, gl.n_parts, gl.ell, gl.diag, gl.tau, gl.cap, gl.eps) == (
         ref.n_vertices, ref.n_parts, ref.ell, ref.diag, ref.tau, ref.cap, ref.eps)
     want = assert_agree(gl, ref, list(batch))

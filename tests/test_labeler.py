@@ -254,3 +254,35 @@ def test_clearance_of_separate_parts_matches_fcl_distance():
         res = fcl.DistanceResult()
         fcl.distance(bvh(v[:n_v], faces[:n_f]), bvh(v[n_v:], faces[n_f:] - n_v), fcl.DistanceRequest(), res)
         assert lab.label(v).pd == pytest.approx(-res.min_distance, rel=1e-6, abs=1e-9), f"D={d}"
+
+
+def test_build_labeler_from_the_labeling_group(tube):
+    """``labeling=<backend>`` files build their labeler through Hydra; a wrong target, an unknown setting or
+    ``labeling.backend`` set without its file are named."""
+    from pathlib import Path
+
+    from hydra import compose, initialize_config_dir
+
+    from neuralcol.collision.backends import build_labeler, gpu_available
+
+    verts, faces = tube
+
+    def labeling(*overrides):
+        conf = Path(__file__).resolve().parents[1] / "conf"
+        with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
+            return compose(config_name="config", overrides=list(overrides)).labeling
+
+    cfg = labeling()
+    lab = build_labeler(cfg, faces, verts)
+    assert type(lab) is ExactLabeler and cfg.backend == lab.backend == "cpu"
+    assert lab.eps == pytest.approx(cfg.labeler.boundary_eps * lab.diag) and lab.n_parts == 1
+    ref = ExactLabeler(faces, verts, boundary_eps=cfg.labeler.boundary_eps)
+    assert lab.label(verts).pd == ref.label(verts).pd
+    if not gpu_available():  # auto: the CPU labeler without CUDA
+        assert type(build_labeler(labeling("labeling=auto"), faces, verts)) is ExactLabeler
+    with pytest.raises(ValueError, match=r"labeling.labeler._target_='neuralcol.collision.labeler.Nope'"):
+        build_labeler(labeling("labeling.labeler._target_=neuralcol.collision.labeler.Nope"), faces, verts)
+    with pytest.raises(ValueError, match=r"labeling.labeler.tol=1: not a setting of"):
+        build_labeler(labeling("+labeling.labeler.tol=1"), faces, verts)
+    with pytest.raises(ValueError, match=r"labeling.backend='fcl': .* choose a backend with labeling=fcl"):
+        build_labeler(labeling("labeling.backend=fcl"), faces, verts)

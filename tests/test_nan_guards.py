@@ -29,7 +29,7 @@ def test_projection_nan_samples_are_dropped_counted_and_replaced(tmp_path):
     acq = ProjectedAcquisition(tmp_path / "pool.h5", oracle, seed=0, box_lo=-torch.ones(D), box_hi=torch.ones(D),
                                projected_fraction=0.5, newton={"eps_z": 1e-7, "max_iter": 20})
     store = CollisionStore(tmp_path / "dc.h5", D, 4)
-    boot = acq.take(200)
+    boot = acq.take_uniform(200)
     store.append(boot.z, boot.pd, boot.pd_sub, boot.collides, boot.subset, 0, boot.origin)
     new = acq(1, HalfNaNDetector(), store, 100)
     failed = new.info["n_projection_failed"]

@@ -145,7 +145,7 @@ def test_hang_times_out_and_is_reported(setup, cluster):
 
 def test_config_starts_and_closes_its_own_cluster(setup, capsys):
     clean, _, batch = setup
-    cfg = OmegaConf.load(ROOT / "conf" / "labeling" / "default.yaml").pool
+    cfg = OmegaConf.load(ROOT / "conf" / "labeling" / "cpu.yaml").pool
     cfg.executor = "dask"  # scheduler null: a LocalCluster of `workers` processes
     with LabelPool(clean, **OmegaConf.to_container(cfg), desc="dask-labels") as pool:
         assert_rows_equal(pool.label(batch), reference(clean, batch))
@@ -176,7 +176,7 @@ def test_lost_scheduler_raises(setup):
 def test_dask_config_is_valid():
     from hydra import compose, initialize_config_dir
 
-    from neuralcol.utils.validate import config_problems
+    from neuralcol.stages.validate import config_problems
 
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose(config_name="config", overrides=["labeling.pool.executor=dask",

@@ -17,12 +17,12 @@ import pytest
 import torch
 from fault_labelers import EXIT, FLAKY, HANG, NAN, RAISE, FaultLabeler, mark, two_spheres
 
-from neuralcol.active.acquisition import Acquired, UniformAcquisition, _concat
-from neuralcol.active.oracle import LatentOracle
+from neuralcol.active.acquisition import AcquiredRows, UniformAcquisition, _concat
 from neuralcol.collision.labeler import ExactLabeler, Labels
 from neuralcol.collision.pool import LabelingError, LabelPool
-from neuralcol.data.collision_store import CollisionStore
-from neuralcol.data.uniform_samples import labeled_uniform_rows, uniform_codes, uniform_rows
+from neuralcol.samples.oracle import LatentOracle
+from neuralcol.samples.store import CollisionStore
+from neuralcol.samples.uniform import labeled_uniform_rows, uniform_codes, uniform_rows
 
 OFFSETS = [1.5, 2.6, 1.9, 3.0, 1.2, 2.05, 1.99, 4.0]  # overlapping (< 2) and free (> 2)
 
@@ -223,13 +223,13 @@ def test_uniform_rows_replace_failed_codes(setup, tmp_path):
     # the uniform acquisition counts the failures of the rows it had to label
     take = UniformAcquisition(path, oracle, seed=1)
     take.cursor = 40
-    got = take.take(5)
+    got = take.take_uniform(5)
     assert len(got.z) == 5 and got.info["n_label_failures"] == got.info["n_uniform_label_failures"] >= 0
     assert np.isfinite(got.pd).all()
 
 
 def test_concat_sums_label_failures():
     def part(n_failed):
-        return Acquired(*(np.zeros(0) for _ in range(6)), 0.0, 0.0, {"n_label_failures": n_failed})
+        return AcquiredRows(*(np.zeros(0) for _ in range(6)), 0.0, 0.0, {"n_label_failures": n_failed})
 
     assert _concat([part(2), part(3)]).info["n_label_failures"] == 5

@@ -1,9 +1,9 @@
-"""bench.threshold_tradeoff: accuracy and FNR per decision threshold, checked by hand-counted cases."""
+"""neuralcol.metrics.threshold.tradeoff: accuracy and FNR per decision threshold, checked by hand-counted cases."""
 
 import numpy as np
 import pytest
 
-from bench.threshold_tradeoff import tradeoff
+from neuralcol.metrics.threshold import tradeoff
 
 
 def test_tradeoff_counts_by_hand():

@@ -33,7 +33,7 @@ from neuralcol.samples.store import CollisionStore, Origin
 from neuralcol.samples.uniform import uniform_rows
 
 
-class Acquired(NamedTuple):
+class AcquiredRows(NamedTuple):
     """New labeled rows: z (B, D), pd (B,), pd_sub (B, K), collides (B,), subset (B,), origin (B,) int8;
     seconds spent labeling and projecting; info (JSON-able statistics)."""
 
@@ -48,13 +48,13 @@ class Acquired(NamedTuple):
     info: dict
 
 
-def _concat(parts: list[Acquired]) -> Acquired:
-    cat = [np.concatenate([getattr(p, f) for p in parts]) for f in Acquired._fields[:6]]
+def _concat(parts: list[AcquiredRows]) -> AcquiredRows:
+    cat = [np.concatenate([getattr(p, f) for p in parts]) for f in AcquiredRows._fields[:6]]
     info: dict = {}
     for p in parts:
         info.update(p.info)
     info["n_label_failures"] = sum(int(p.info.get("n_label_failures", 0)) for p in parts)
-    return Acquired(*cat, sum(p.label_seconds for p in parts), sum(p.project_seconds for p in parts), info)
+    return AcquiredRows(*cat, sum(p.label_seconds for p in parts), sum(p.project_seconds for p in parts), info)
 
 
 class UniformAcquisition:
@@ -72,7 +72,7 @@ class UniformAcquisition:
         self.seed = int(seed)
         self.cursor = 0
 
-    def take(self, n: int) -> Acquired:
+    def take_uniform(self, n: int) -> AcquiredRows:
         """The next ``n`` pool rows (labeling them if the pool is shorter; codes that fail to label are
         replaced by the next ones and counted in ``info["n_label_failures"]``)."""
         stop = self.cursor + int(n)
@@ -80,13 +80,13 @@ class UniformAcquisition:
                                                       desc="labeling uniform samples")
         sl = slice(self.cursor, stop)
         self.cursor = stop
-        return Acquired(rows.z[sl], rows.pd[sl], rows.pd_sub[sl], rows.collides[sl], rows.subset[sl],
+        return AcquiredRows(rows.z[sl], rows.pd[sl], rows.pd_sub[sl], rows.collides[sl], rows.subset[sl],
                         np.full(int(n), Origin.UNIFORM, np.int8), seconds, 0.0,
                         {"n_uniform": int(n), "n_uniform_labeled_now": labeled,
                          "n_uniform_label_failures": failed, "n_label_failures": failed})
 
-    def __call__(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> Acquired:
-        return self.take(n)
+    def __call__(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> AcquiredRows:
+        return self.take_uniform(n)
 
     def state_dict(self) -> dict:
         return {"cursor": self.cursor}
@@ -101,7 +101,7 @@ class ProjectedAcquisition(UniformAcquisition):
 
     Args:
         pool_path, oracle, seed: as :class:`UniformAcquisition`.
-        box_lo, box_hi: (D,) the box Z (projected codes stay inside).
+        box_lo, box_hi: (D,) the box Z (projected codes stay inside); None: the oracle's latent space's box.
         projected_fraction: share of projected samples (paper: 1/2).
         newton: keyword arguments of :func:`~neuralcol.active.newton.newton_project`.
         start: where the projected half starts: ``"dc"`` (rows drawn from D_c, the paper's Algorithm 1) or
@@ -113,9 +113,9 @@ class ProjectedAcquisition(UniformAcquisition):
 
     STARTS = ("dc", "uncertain")
 
-    def __init__(self, pool_path, oracle: LatentOracle, seed: int, box_lo: torch.Tensor, box_hi: torch.Tensor,
-                 projected_fraction: float = 0.5, newton: dict | None = None, start: str = "dc",
-                 candidates: int = 10, project: bool = True):
+    def __init__(self, pool_path, oracle: LatentOracle, seed: int, box_lo: torch.Tensor | None = None,
+                 box_hi: torch.Tensor | None = None, projected_fraction: float = 0.5, newton: dict | None = None,
+                 start: str = "dc", candidates: int = 10, project: bool = True):
         super().__init__(pool_path, oracle, seed)
         if not 0.0 <= projected_fraction <= 1.0:
             raise ValueError(f"projected_fraction={projected_fraction} must be in [0, 1]")
@@ -123,6 +123,8 @@ class ProjectedAcquisition(UniformAcquisition):
             raise ValueError(f"start={start!r}; use one of {self.STARTS}")
         if int(candidates) < 1:
             raise ValueError(f"candidates={candidates} must be >= 1")
+        box_lo = oracle.space.box_lo if box_lo is None else box_lo
+        box_hi = oracle.space.box_hi if box_hi is None else box_hi
         self.box_lo, self.box_hi = box_lo.detach().cpu().float(), box_hi.detach().cpu().float()
         self.projected_fraction = float(projected_fraction)
         self.newton = dict(newton or {})
@@ -143,7 +145,7 @@ class ProjectedAcquisition(UniformAcquisition):
         pick = torch.argsort(logit.abs(), stable=True)[:n]
         return cand[pick]
 
-    def project(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> Acquired:
+    def project(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> AcquiredRows:
         t0 = time.perf_counter()
         if self.start == "dc":
             gen = np.random.default_rng([self.seed, round_])
@@ -183,17 +185,18 @@ class ProjectedAcquisition(UniformAcquisition):
                 "newton_mean_iterations": float(proj.iterations.float().mean()) if n else float("nan"),
                 "projected_prob_mean": float(p.mean()) if len(p) else float("nan"),
                 "projected_collide_fraction": float(lab.collides.mean()) if len(z) else float("nan"),
-                "projected_boundary_fraction": float((lab.subset == SUBSET_BOUNDARY).mean()) if len(z) else float("nan"),
+                "projected_boundary_fraction": float((lab.subset == SUBSET_BOUNDARY).mean()) if len(z) else
+                float("nan"),
                 "projection": quality}
-        return Acquired(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset,
+        return AcquiredRows(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset,
                         np.full(len(z), Origin.PROJECTED, np.int8), lab.seconds, t_proj, info)
 
-    def __call__(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> Acquired:
+    def __call__(self, round_: int, net: torch.nn.Module, store: CollisionStore, n: int) -> AcquiredRows:
         n_proj = int(round(n * self.projected_fraction))
         projected = self.project(round_, net, store, n_proj)
         # failed projections (non-finite) and projected samples that failed to label are replaced by uniform
         # samples, so D_c grows by exactly n
-        uniform = self.take(n - len(projected.z))
+        uniform = self.take_uniform(n - len(projected.z))
         if "projection" in projected.info:  # the same shares for this round's uniform samples, for comparison
             eps = float(self.oracle.pool.labeler.eps)
             projected.info["projection"]["uniform"] = boundary_shares(uniform.pd, eps)

@@ -50,7 +50,7 @@ class Schedule:
         return max(self.epochs, -(-self.min_steps // batches))
 
 
-class DataRounds(L.Callback):
+class RoundCallback(L.Callback):
     """Grows D_c round by round inside one fit.
 
     Args:

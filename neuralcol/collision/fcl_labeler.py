@@ -1,4 +1,4 @@
-"""The paper's labeler: self-collision verdict, PD and PD_i from python-fcl (``labeling.backend=fcl``).
+"""The paper's labeler: self-collision verdict, PD and PD_i from python-fcl (``labeling=fcl``).
 
 Tan et al. (AAAI 2022) label their meshes with FCL. :class:`FCLLabeler` does the same with python-fcl and
 exposes the interface of :class:`~neuralcol.collision.labeler.ExactLabeler` (``label``, ``verdict``,
@@ -52,7 +52,7 @@ Differences from ``ExactLabeler`` (``docs/labels.md``, "python-fcl backend"):
 * verdict: one-vertex neighbours that fold through each other are not counted (above);
 * colliding PD: FCL's contact depth is local to a triangle pair and not continuous: it jumps from "no
   contact" to about the height of the piercing triangle when a triangle enters another through its edge
-  (``python -m bench.fcl_depth_continuity``), where ours is the translational depth of the penetrating
+  (``python -m research.fcl_depth_continuity``), where ours is the translational depth of the penetrating
   region, 0 at first contact;
 * free PD: near pairs (within cap in the rest mesh, at patch granularity) never lower the clearance, so
   a fold or two nearby surfaces closing in keep ``PD = -cap`` until they collide (ours measures their
@@ -70,7 +70,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from neuralcol.collision.labeler import Label, Labels, checked_partition, split_subsets
+from neuralcol.collision.labeler import Label, MeshByMesh, checked_partition
 from neuralcol.geometry.topology import edge_topology
 
 METHODS = ("broadphase", "bvh", "grid")
@@ -168,7 +168,7 @@ def _box_gap(lo: np.ndarray, hi: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     return np.sqrt((d * d).sum(1))
 
 
-class FCLLabeler:
+class FCLLabeler(MeshByMesh):
     """The paper's labels from python-fcl, with ExactLabeler's interface (see the module docstring).
 
     Args:
@@ -187,7 +187,8 @@ class FCLLabeler:
             FCL); same contacts.
     """
 
-    label_kind = "fcl"  # another definition of PD than ExactLabeler's: cached apart (neuralcol.stages.detector)
+    backend = "fcl"  # labeling=fcl (conf/labeling/fcl.yaml)
+    label_kind = "fcl"  # another definition of PD than ExactLabeler's: cached apart (neuralcol.samples.cache)
     batched = False
 
     def __init__(self, faces, rest_vertices, partition=None, touch_tol: float = 1e-6,
@@ -273,14 +274,6 @@ class FCLLabeler:
         self._near_keys = np.sort(near_pairs[:, 0] * max(n_patches, 1) + near_pairs[:, 1])
 
     # ------------------------------------------------------------------ helpers
-    def _check(self, vertices) -> np.ndarray:
-        v = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64))
-        if v.shape != (self.n_vertices, 3):
-            raise ValueError(f"vertices have shape {v.shape}, expected ({self.n_vertices}, 3)")
-        if not np.isfinite(v).all():
-            raise ValueError("vertices contain NaN or inf; cannot label")
-        return v
-
     def _patch_boxes(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         tri = v[self.faces[self._patch_order]]  # (F, 3, 3) in patch order
         starts = self._patch_ptr[:-1]
@@ -330,7 +323,7 @@ class FCLLabeler:
         tri = v[self.faces]
         lo, hi = tri.min(1) - self._margin, tri.max(1) + self._margin
         if self.method == "grid":
-            from neuralcol.collision.kernels import grid_pairs
+            from neuralcol.collision.kernels.broadphase import grid_pairs
 
             found = np.sort(grid_pairs(lo, hi, self.cell), axis=1)
             n = len(self.faces)
@@ -435,17 +428,6 @@ class FCLLabeler:
         clear = self.clearances(v, skip=colliding)
         pd_sub = np.where(colliding, pen, -np.minimum(clear, self.cap))
         return Label(bool(len(pairs) > 0), int(len(pairs)), float(pd_sub.max()), pd_sub)
-
-    def label_batch(self, vertices) -> Labels:
-        """Labels of a batch (B, V, 3), one mesh after the other."""
-        v = np.asarray(vertices)
-        if v.ndim != 3:
-            raise ValueError(f"vertices have shape {v.shape}, expected (B, {self.n_vertices}, 3)")
-        return Labels.stack([self.label(x) for x in v], self.n_parts)
-
-    def subsets(self, pd: np.ndarray) -> np.ndarray:
-        """D_p / D_n / D_b codes of PD values with this labeler's ``eps`` (see :func:`split_subsets`)."""
-        return split_subsets(pd, self.eps)
 
     def __getstate__(self) -> dict:
         # numpy arrays and settings only: every FCL object is built per call, none is ever an attribute

@@ -49,20 +49,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from neuralcol.collision.kernels import (
-    corner_cones,
-    drop_adjacent,
-    far_pass,
-    finish_label,
-    grid_pairs,
-    label_mesh,
-    near_pass,
-    near_table,
-    pair_depths,
-    triangle_aabbs,
-    triangle_axes,
-    verdict_kernel,
-)
+from neuralcol.collision.kernels.broadphase import drop_adjacent, grid_pairs, triangle_aabbs
+from neuralcol.collision.kernels.depth import pair_depths, triangle_axes
+from neuralcol.collision.kernels.distance import corner_cones
+from neuralcol.collision.kernels.label_pass import finish_label, label_mesh, verdict_kernel
+from neuralcol.collision.kernels.pair_terms import near_table
+from neuralcol.collision.kernels.pruned_pass import far_pass, near_pass
 from neuralcol.geometry.topology import edge_topology, vertex_neighbors
 
 
@@ -123,7 +115,6 @@ def split_subsets(pd: np.ndarray, eps: float) -> np.ndarray:
     return out
 
 
-
 def checked_partition(partition, n_vertices: int) -> np.ndarray:
     """The vertex partition as (V,) int64 in [0, K) (None: one part, all zeros); ValueError if malformed."""
     if partition is None:
@@ -135,7 +126,35 @@ def checked_partition(partition, n_vertices: int) -> np.ndarray:
         raise ValueError("partition entries must be >= 0")
     return part
 
-class ExactLabeler:
+
+class MeshByMesh:
+    """``label_batch`` and ``subsets`` of a labeler that labels one mesh at a time with its ``label`` (and has
+    ``n_vertices``, ``n_parts`` and ``eps``), and the check of one mesh's vertices: :class:`ExactLabeler` and
+    :class:`~neuralcol.collision.fcl_labeler.FCLLabeler`."""
+
+    def _check(self, vertices) -> np.ndarray:
+        """One mesh's vertices as (V, 3) contiguous float64; ValueError if the shape is wrong or not finite."""
+        v = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64))
+        if v.shape != (self.n_vertices, 3):
+            raise ValueError(f"vertices have shape {v.shape}, expected ({self.n_vertices}, 3)")
+        if not np.isfinite(v).all():
+            raise ValueError("vertices contain NaN or inf; cannot label")
+        return v
+
+    def label_batch(self, vertices) -> Labels:
+        """Labels of a batch (B, V, 3), one mesh after the other in this process (worker processes:
+        :class:`~neuralcol.collision.pool.LabelPool`)."""
+        v = np.asarray(vertices)
+        if v.ndim != 3:
+            raise ValueError(f"vertices have shape {v.shape}, expected (B, {self.n_vertices}, 3)")
+        return Labels.stack([self.label(x) for x in v], self.n_parts)
+
+    def subsets(self, pd: np.ndarray) -> np.ndarray:
+        """D_p / D_n / D_b codes of PD values with this labeler's ``eps`` (see :func:`split_subsets`)."""
+        return split_subsets(pd, self.eps)
+
+
+class ExactLabeler(MeshByMesh):
     """Exact self-collision labels for meshes of one topology (see the module docstring).
 
     Args:
@@ -151,6 +170,8 @@ class ExactLabeler:
             pair within cap, the reference path (same labels, quadratic in the mesh density; see
             ``docs/labels.md``, "Scaling").
     """
+
+    backend = "cpu"  # labeling=cpu (conf/labeling/cpu.yaml)
 
     def __init__(self, faces, rest_vertices, partition=None, touch_tol: float = 1e-6,
                  clearance_cap: float = 0.01, boundary_eps: float = 2e-3, cell_factor: float = 2.0,
@@ -207,14 +228,6 @@ class ExactLabeler:
         self.partition = part
         self.n_parts = int(part.max()) + 1
         self._tri_part = part[self.faces]  # (F, 3) part of each corner
-
-    def _check(self, vertices) -> np.ndarray:
-        v = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64))
-        if v.shape != (self.n_vertices, 3):
-            raise ValueError(f"vertices have shape {v.shape}, expected ({self.n_vertices}, 3)")
-        if not np.isfinite(v).all():
-            raise ValueError("vertices contain NaN or inf; cannot label")
-        return v
 
     # ------------------------------------------------------------------ queries
     def candidate_pairs(self, vertices, inflate: float = 0.0) -> np.ndarray:
@@ -282,7 +295,8 @@ class ExactLabeler:
                           self._near_ptr, self._near_b, self._near_rest)
 
     def _near_scratch(self):
-        """Work space of :func:`~neuralcol.collision.kernels.near_pass`, made once per labeler (not pickled)."""
+        """Work space of :func:`~neuralcol.collision.kernels.pruned_pass.near_pass`, made once per labeler (not
+        pickled)."""
         scratch = getattr(self, "_scratch", None)
         if scratch is None:
             n = len(self._near_b)
@@ -295,7 +309,7 @@ class ExactLabeler:
         return state
 
     def _far_pass(self, v, lo0, hi0, lo_cap, hi_cap, axes, clear, floor, rec_key, rec_int, n_rec):
-        """Far pairs (:func:`~neuralcol.collision.kernels.far_pass`), one grid over boxes grown by
+        """Far pairs (:func:`~neuralcol.collision.kernels.pruned_pass.far_pass`), one grid over boxes grown by
         ``(r + margin) / 2`` with ``r`` the largest current ``min(clear_i, cap)``: it holds every far pair with
         overlapping boxes (they may be counted) and every far pair whose per-axis box gaps are all <= r + margin,
         so a far pair it misses has distance > r and cannot lower any clearance (``margin`` = 1e-9 cap covers
@@ -313,14 +327,3 @@ class ExactLabeler:
                         self.tau,
                         self.cap, clear, floor, self.partition, self.adj_ptr, self.adj_idx, self.adj_eid, self.orient,
                         rec_key, rec_int, n_rec)
-
-    def label_batch(self, vertices) -> Labels:
-        """Labels of a batch (B, V, 3), in-process (see :class:`~neuralcol.collision.pool.LabelPool`)."""
-        v = np.asarray(vertices)
-        if v.ndim != 3:
-            raise ValueError(f"vertices have shape {v.shape}, expected (B, {self.n_vertices}, 3)")
-        return Labels.stack([self.label(x) for x in v], self.n_parts)
-
-    def subsets(self, pd: np.ndarray) -> np.ndarray:
-        """D_p / D_n / D_b codes of PD values with this labeler's ``eps`` (see :func:`split_subsets`)."""
-        return split_subsets(pd, self.eps)

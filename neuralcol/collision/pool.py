@@ -74,12 +74,18 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from neuralcol.collision.labeler import ExactLabeler, Label, Labels
-from neuralcol.utils.faults import fault_point
+from neuralcol.collision.pool_common import (
+    STARTUP_TIMEOUT,
+    Batch,
+    Task,
+    failure_reason,
+    label_chunk,
+    submit_ready,
+    warm_up,
+)
 
 log = logging.getLogger(__name__)
 
-STARTUP_TIMEOUT = 900.0  # seconds the workers may take to start (import, unpickle the labeler, load/compile kernels)
-MAX_REASON = 300  # characters of an exception message kept in a failure reason
 REPORTED_FAILURES = 10  # failures named in a warning line / error message
 
 EXECUTORS = ("local", "dask")  # LabelPool(executor=...) by name; or a concurrent.futures.Executor object
@@ -129,26 +135,13 @@ def format_failures(failures: list[LabelFailure], n: int) -> str:
     return f"{len(failures)} of {n} meshes could not be labelled: {shown}{more}"
 
 
-def _reason(exc: BaseException) -> str:
-    """One line: ``"ExceptionType: message"`` (message shortened)."""
-    msg = " ".join(str(exc).split())
-    if len(msg) > MAX_REASON:
-        msg = msg[:MAX_REASON - 3] + "..."
-    return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
-
-
 def _init_worker(labeler: ExactLabeler) -> None:
-    """Initializer of the pool's worker processes: keep the labeler, sent once per worker, and label its rest
-    mesh once so the compiled kernels are loaded (or compiled) before the worker takes a chunk, outside any
-    chunk's timeout."""
+    """Initializer of the pool's worker processes: keep the labeler, sent once per worker, and warm it up
+    (:func:`~neuralcol.collision.pool_common.warm_up`) before the worker takes a chunk, outside any chunk's
+    timeout."""
     global _WORKER_LABELER
     _WORKER_LABELER = labeler
-    rest = getattr(labeler, "rest", None)
-    if rest is not None:
-        try:
-            labeler.label(rest)
-        except Exception:  # only a warm-up: a real problem shows on the chunks
-            pass
+    warm_up(labeler)
 
 
 def require_distributed() -> None:
@@ -169,45 +162,7 @@ def _label_chunk(chunk: np.ndarray) -> list[Label | str]:
     """Labels of a chunk (C, V, 3) float64 with the labeler installed by :func:`_init_worker`."""
     if _WORKER_LABELER is None:
         raise RuntimeError("LabelPool worker has no labeler; _label_chunk must run in a pool made by LabelPool")
-    return _label_chunk_with(_WORKER_LABELER, chunk)
-
-
-def _label_chunk_with(labeler: ExactLabeler, chunk: np.ndarray) -> list[Label | str]:
-    """Labels of a chunk (C, V, 3) float64 with the given labeler (self-contained task for any executor).
-
-    Args:
-        labeler: the exact labeler.
-        chunk: (C, V, 3) float64 vertices.
-
-    Returns:
-        C entries in the order of ``chunk``: the mesh's Label, or a failure reason (str) if the labeler raised
-        an exception or returned a non-finite PD.
-    """
-    out: list[Label | str] = []
-    if getattr(labeler, "batched", False) and len(chunk) > 1:
-        # a batched backend (e.g. the GPU labeler) labels the whole chunk at once; if that raises, every mesh is
-        # labelled alone below, so one bad mesh still fails alone
-        try:
-            labels = labeler.label_batch(chunk)
-        except Exception:
-            labels = None
-        if labels is not None:
-            for i in range(len(chunk)):
-                lb = Label(bool(labels.collides[i]), int(labels.n_pairs[i]), float(labels.pd[i]), labels.pd_sub[i])
-                ok = np.isfinite(lb.pd) and np.isfinite(lb.pd_sub).all()
-                out.append(lb if ok else f"non-finite label (pd={lb.pd})")
-            return out
-    for v in chunk:
-        try:
-            lb = labeler.label(v)
-        except Exception as exc:  # one bad mesh must not lose the chunk
-            out.append(_reason(exc))
-            continue
-        if not (np.isfinite(lb.pd) and np.isfinite(lb.pd_sub).all()):
-            out.append(f"non-finite label (pd={lb.pd})")
-        else:
-            out.append(lb)
-    return out
+    return label_chunk(_WORKER_LABELER, chunk)
 
 
 def _death_reason(exit_codes: list[int | None]) -> str:
@@ -223,55 +178,6 @@ def _death_reason(exit_codes: list[int | None]) -> str:
         return f"worker died (signal {signal.Signals(-c).name})"
     except ValueError:
         return f"worker died (exit code {c})"
-
-
-class _Task(NamedTuple):
-    """Meshes (global indices) labelled together; ``isolated``: a suspect running alone (see the module doc)."""
-
-    idx: np.ndarray
-    isolated: bool
-
-
-class _Batch:
-    """Bookkeeping of one call: labels and failures by index, exception retries, the progress bar."""
-
-    def __init__(self, n: int, bar):
-        self.results: list[Label | None] = [None] * n
-        self.failures: dict[int, str] = {}
-        self.raised: collections.Counter = collections.Counter()  # exceptions per mesh
-        self.bar = bar
-
-    def fail(self, i: int, reason: str) -> None:
-        self.failures[int(i)] = reason
-        self.bar.update(1)
-
-    def give_up(self, queues, reason: str) -> None:
-        """Report every mesh of the tasks still in ``queues`` (deques of _Task) as failed and empty them."""
-        for q in queues:
-            for task in q:
-                for i in task.idx:
-                    self.fail(int(i), reason)
-            q.clear()
-
-    def settle(self, task: _Task, out: list[Label | str]) -> list[_Task]:
-        """Record a task's result; returns the retries (meshes that raised for the first time, each alone)."""
-        retry = []
-        for i, r in zip(task.idx, out):
-            if isinstance(r, str):
-                retry += self.charge(int(i), r, task.isolated)
-            else:
-                self.results[int(i)] = r
-                self.bar.update(1)
-        fault_point("label_chunk")  # crash tests (neuralcol.utils.faults): a chunk is labelled
-        return retry
-
-    def charge(self, i: int, reason: str, isolated: bool) -> list[_Task]:
-        """A mesh raised: retried once (alone), then reported."""
-        self.raised[i] += 1
-        if self.raised[i] >= 2:
-            self.fail(i, reason)
-            return []
-        return [_Task(np.array([i]), isolated)]
 
 
 class LabelPool:
@@ -402,7 +308,7 @@ class LabelPool:
             errors = [f.exception() for f in done if f.exception() is not None]
             if not_done or errors:
                 self._discard_executor(kill=True)
-                why = _reason(errors[0]) if errors else f"not ready after {STARTUP_TIMEOUT:g} s"
+                why = failure_reason(errors[0]) if errors else f"not ready after {STARTUP_TIMEOUT:g} s"
                 raise RuntimeError(f"LabelPool: the {self.workers} worker processes did not start ({why})")
             self._pids = {f.result() for f in done}
         return self._own_executor
@@ -538,16 +444,16 @@ class LabelPool:
         n, k = len(v), self.labeler.n_parts
         todo = np.setdiff1d(np.arange(n), np.fromiter(skip or {}, dtype=np.int64, count=len(skip or {})))
         # chunks of consecutive meshes to label (the skipped ones are left out)
-        tasks = [_Task(todo[s:s + self.chunk_size], False) for s in range(0, len(todo), self.chunk_size)]
+        tasks = [Task(todo[s:s + self.chunk_size], False) for s in range(0, len(todo), self.chunk_size)]
         with tqdm(total=n, desc=self.desc, unit="mesh", disable=not self.progress) as bar:
-            batch = _Batch(n, bar)
+            batch = Batch(n, bar)
             for i, why in (skip or {}).items():
                 batch.fail(i, why)
             if self.executor == "local" and self.workers <= 1:
                 queue = collections.deque(tasks)
                 while queue:
                     task = queue.popleft()
-                    queue.extend(batch.settle(task, _label_chunk_with(self.labeler, v[task.idx])))
+                    queue.extend(batch.settle(task, label_chunk(self.labeler, v[task.idx])))
             elif self.executor == "dask":
                 from neuralcol.collision.pool_dask import run_dask
 
@@ -564,25 +470,25 @@ class LabelPool:
         failures = [LabelFailure(i, batch.failures[i]) for i in sorted(batch.failures)]
         return LabelReport(labels, ok, failures)
 
-    def _run_executor(self, v: np.ndarray, tasks: list[_Task], batch: _Batch) -> None:
+    def _run_executor(self, v: np.ndarray, tasks: list[Task], batch: Batch) -> None:
         """Label ``tasks`` on the pool's worker processes (at most ``workers`` chunks in flight, faults handled
         as the module docstring says) or on the user's executor (all submitted at once)."""
         own = self._user_executor is None
         limit = self.workers if own else max(len(tasks), 1)
         timeout = self.timeout if own else None
         normal = collections.deque(tasks)
-        suspects: collections.deque[_Task] = collections.deque()  # labelled alone, nothing else in flight
-        in_flight: dict[cf.Future, tuple[_Task, float]] = {}
+        suspects: collections.deque[Task] = collections.deque()  # labelled alone, nothing else in flight
+        in_flight: dict[cf.Future, tuple[Task, float]] = {}
         restarts = 0
 
-        def submit(queue: collections.deque[_Task]) -> None:
+        def submit(queue: collections.deque[Task]) -> None:
             """Submit the first task of ``queue`` (taken off it only once submitted)."""
             task = queue[0]
             chunk = v[task.idx]
             if own:
                 fut = self._process_executor().submit(_label_chunk, chunk)
             else:
-                fut = self._user_executor.submit(_label_chunk_with, self.labeler, chunk)
+                fut = self._user_executor.submit(label_chunk, self.labeler, chunk)
             in_flight[fut] = (queue.popleft(), time.monotonic())
 
         def harvest(fut: cf.Future) -> bool:
@@ -595,7 +501,7 @@ class LabelPool:
             if exc is None:
                 retries = batch.settle(task, fut.result())
             elif isinstance(exc, Exception):  # the task itself failed (e.g. results could not be pickled)
-                retries = [t for i in task.idx for t in batch.charge(int(i), _reason(exc), task.isolated)]
+                retries = [t for i in task.idx for t in batch.charge(int(i), failure_reason(exc), task.isolated)]
             else:
                 raise exc
             for t in retries:
@@ -620,7 +526,7 @@ class LabelPool:
                 for i in lost[0].idx:
                     batch.fail(int(i), reason)
             else:
-                suspects.extend(_Task(np.array([i]), True) for task in lost for i in task.idx)
+                suspects.extend(Task(np.array([i]), True) for task in lost for i in task.idx)
             restarts += 1
             if restarts > self.max_restarts and (normal or suspects):
                 why = (f"not labelled: the worker processes were restarted {restarts} times in one call "
@@ -630,12 +536,7 @@ class LabelPool:
         try:
             while normal or suspects or in_flight:
                 try:
-                    if suspects:
-                        if not in_flight:
-                            submit(suspects)
-                    else:
-                        while normal and len(in_flight) < limit:
-                            submit(normal)
+                    submit_ready(normal, suspects, in_flight, limit, submit)
                 except BrokenProcessPool:
                     if not own:
                         raise

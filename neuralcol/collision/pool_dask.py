@@ -9,7 +9,7 @@ processes with one thread each on this machine (loopback only, no dashboard; clo
   has the labeler before it takes a task (data scattered with ``client.scatter`` would be lost with the last
   worker that held it). Each task carries only its chunk of meshes and the pool's token.
 * **Order and values**: the same chunks and the same per-chunk function as the in-process path
-  (:func:`~neuralcol.collision.pool._label_chunk_with`), reassembled by index: bit-identical labels.
+  (:func:`~neuralcol.collision.pool_common.label_chunk`), reassembled by index: bit-identical labels.
 * **Bounded memory**: at most ``2 x`` the cluster's thread count chunks are in flight (measured at each call).
 * **A worker that dies** (``os._exit``, a segfault, SIGKILL, the OOM killer): dask's nanny restarts it and the
   scheduler resubmits the tasks it held, up to ``distributed.scheduler.allowed-failures`` deaths per task. If
@@ -43,7 +43,7 @@ import numpy as np
 from distributed import Client, KilledWorker, LocalCluster, get_worker
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from neuralcol.collision.pool import STARTUP_TIMEOUT, _Batch, _label_chunk_with, _reason, _Task
+from neuralcol.collision import pool_common as common
 
 log = logging.getLogger(__name__)
 
@@ -93,23 +93,18 @@ def _label_chunk_dask(token: str, tid: int, chunk: np.ndarray, log_start: bool) 
         log_start: send a start event (``timeout``), after the labeler's warm-up.
 
     Returns:
-        C entries: the mesh's Label, or a failure reason (see :func:`~neuralcol.collision.pool._label_chunk_with`).
+        C entries: the mesh's Label, or a failure reason (see :func:`~neuralcol.collision.pool_common.label_chunk`).
     """
     labeler = _LABELERS.get(token)
     if labeler is None:
         raise RuntimeError("this dask worker has no labeler for the LabelPool (its worker plugin is not installed)")
     if token not in _WARM:  # label the rest mesh once, outside any chunk's timeout
         _WARM.add(token)
-        rest = getattr(labeler, "rest", None)
-        if rest is not None:
-            try:
-                labeler.label(rest)
-            except Exception:  # only a warm-up: a real problem shows on the chunks
-                pass
+        common.warm_up(labeler)
     if log_start:
         worker = get_worker()
         worker.log_event(_topic(token), {"tid": tid, "worker": worker.address})
-    return _label_chunk_with(labeler, chunk)
+    return common.label_chunk(labeler, chunk)
 
 
 def _kill_worker_process(dask_worker) -> int:
@@ -131,13 +126,13 @@ def _shutdown(client: Client, cluster: LocalCluster | None, plugin: str | None, 
             if plugin is not None and cluster is None:  # a LocalCluster of our own goes away anyway
                 client.unregister_worker_plugin(plugin)
     except Exception as exc:  # the scheduler may be gone; nothing to clean up there then
-        log.debug("LabelPool: could not remove the labeler from the dask workers: %s", _reason(exc))
+        log.debug("LabelPool: could not remove the labeler from the dask workers: %s", common.failure_reason(exc))
     for what, close in (("client", client.close), ("LocalCluster", cluster.close if cluster is not None else None)):
         if close is not None:
             try:
                 close()
             except Exception as exc:  # closing must not raise (e.g. the scheduler is gone already)
-                log.warning("LabelPool: closing the dask %s failed: %s", what, _reason(exc))
+                log.warning("LabelPool: closing the dask %s failed: %s", what, common.failure_reason(exc))
 
 
 class DaskSession:
@@ -165,19 +160,20 @@ class DaskSession:
             if self.cluster is not None:
                 self.cluster.close()
             where = f"the dask scheduler at {scheduler}" if scheduler else "a dask LocalCluster"
-            raise RuntimeError(f"LabelPool: cannot start or reach {where} ({_reason(exc)})") from exc
+            raise RuntimeError(f"LabelPool: cannot start or reach {where} ({common.failure_reason(exc)})") from exc
         self.token = uuid.uuid4().hex
         self.topic = _topic(self.token) if timeout is not None else None
         self.plugin: str | None = None
         self._finalizer = weakref.finalize(self, _shutdown, self.client, self.cluster, None, None)
         try:
-            self.client.wait_for_workers(1, timeout=STARTUP_TIMEOUT)
+            self.client.wait_for_workers(1, timeout=common.STARTUP_TIMEOUT)
             plugin = _LabelerPlugin(self.token, labeler)
             self.client.register_plugin(plugin)
             self.plugin = plugin.name
         except Exception as exc:
             self.close()
-            raise RuntimeError(f"LabelPool: the dask workers did not take the labeler ({_reason(exc)})") from exc
+            why = common.failure_reason(exc)
+            raise RuntimeError(f"LabelPool: the dask workers did not take the labeler ({why})") from exc
         self._finalizer.detach()
         self._finalizer = weakref.finalize(self, _shutdown, self.client, self.cluster, self.plugin, self.topic)
         # start events of the chunks (timeout only): task number -> (monotonic time received, worker address)
@@ -212,9 +208,9 @@ class DaskSession:
             out = self.client.run(_kill_worker_process, workers=[address], nanny=True, on_error="return")
             if not isinstance(out.get(address), BaseException):
                 return True
-            why = _reason(out[address])
+            why = common.failure_reason(out[address])
         except Exception as exc:
-            why = _reason(exc)
+            why = common.failure_reason(exc)
         log.info("LabelPool: cannot kill the dask worker %s through its nanny (%s); asking the scheduler to "
                  "restart it", address, why)
         try:
@@ -223,7 +219,7 @@ class DaskSession:
                 return True
             why = str(status.get(address))
         except Exception as exc:
-            why = _reason(exc)
+            why = common.failure_reason(exc)
         log.warning("LabelPool: could not restart the hung dask worker %s (%s); its thread stays busy", address, why)
         return False
 
@@ -231,18 +227,18 @@ class DaskSession:
         self._finalizer()
 
 
-def run_dask(pool, session: DaskSession, v: np.ndarray, tasks: list[_Task], batch: _Batch) -> None:
+def run_dask(pool, session: DaskSession, v: np.ndarray, tasks: list[common.Task], batch: common.Batch) -> None:
     """Label ``tasks`` of ``v`` on the dask cluster of ``session``; faults handled as the module docstring says."""
     client = session.client
     limit = IN_FLIGHT_PER_THREAD * max(1, session.threads())
     timeout = pool.timeout
     normal = collections.deque(tasks)
-    suspects: collections.deque[_Task] = collections.deque()  # labelled alone, nothing else in flight
+    suspects: collections.deque[common.Task] = collections.deque()  # labelled alone, nothing else in flight
     in_flight: dict = {}  # future -> (task, task number)
     done_q: queue.Queue = queue.Queue()  # futures whose result is in (filled by dask's callback thread)
     restarts = 0
 
-    def submit(q: collections.deque[_Task]) -> None:
+    def submit(q: collections.deque[common.Task]) -> None:
         task = q.popleft()
         fut, tid = session.submit(v[task.idx])
         in_flight[fut] = (task, tid)
@@ -257,7 +253,7 @@ def run_dask(pool, session: DaskSession, v: np.ndarray, tasks: list[_Task], batc
                    f"(max_restarts={pool.max_restarts}; last: {reason})")
             batch.give_up((normal, suspects), why)
 
-    def lost(task: _Task, reason: str) -> None:
+    def lost(task: common.Task, reason: str) -> None:
         """A chunk killed its workers or hung: a suspect alone is the culprit, the others are relabelled alone."""
         if task.isolated:
             for i in task.idx:
@@ -265,7 +261,7 @@ def run_dask(pool, session: DaskSession, v: np.ndarray, tasks: list[_Task], batc
         else:
             log.info("%s: a chunk %s; its %d mesh(es) are relabelled one at a time", pool.desc, reason,
                      len(task.idx))
-            suspects.extend(_Task(np.array([i]), True) for i in task.idx)
+            suspects.extend(common.Task(np.array([i]), True) for i in task.idx)
         restarted(reason)
 
     def harvest(fut) -> None:
@@ -280,10 +276,10 @@ def run_dask(pool, session: DaskSession, v: np.ndarray, tasks: list[_Task], batc
                 lost(task, f"worker died (dask KilledWorker: {exc.allowed_failures + 1} workers died running it)")
                 return
             # the task itself failed (e.g. its result could not be pickled): charged like a raising mesh
-            retries = [t for i in task.idx for t in batch.charge(int(i), _reason(exc), task.isolated)]
+            retries = [t for i in task.idx for t in batch.charge(int(i), common.failure_reason(exc), task.isolated)]
         else:  # cancelled, not by us: the scheduler connection was lost, or someone cancelled our work
             exc = getattr(getattr(fut, "_state", None), "exception", None)  # FutureCancelledError: the reason
-            why = _reason(exc) if isinstance(exc, BaseException) else status
+            why = common.failure_reason(exc) if isinstance(exc, BaseException) else status
             raise ClusterLost(f"LabelPool: the dask cluster at {session.address} dropped a chunk ({why}); the "
                               "cluster is not the pool's to restart")
         for t in retries:
@@ -313,12 +309,7 @@ def run_dask(pool, session: DaskSession, v: np.ndarray, tasks: list[_Task], batc
     poll = 1.0 if timeout is None else min(1.0, timeout / 4)
     try:
         while normal or suspects or in_flight:
-            if suspects:
-                if not in_flight:
-                    submit(suspects)
-            else:
-                while normal and len(in_flight) < limit:
-                    submit(normal)
+            common.submit_ready(normal, suspects, in_flight, limit, submit)
             try:
                 fut = done_q.get(timeout=poll)
             except queue.Empty:
@@ -345,8 +336,9 @@ def run_dask(pool, session: DaskSession, v: np.ndarray, tasks: list[_Task], batc
         if not isinstance(exc, ClusterLost) and (cancelled or (isinstance(exc, Exception)
                                                                 and client.status != "running")):
             # (a dask call can fail in other ways while the connection drops)
-            raise ClusterLost(f"LabelPool: the dask cluster at {session.address} dropped a chunk ({_reason(exc)}; "
-                              f"client {client.status}); the cluster is not the pool's to restart") from exc
+            raise ClusterLost(f"LabelPool: the dask cluster at {session.address} dropped a chunk "
+                              f"({common.failure_reason(exc)}; client {client.status}); the cluster is not the "
+                              "pool's to restart") from exc
         raise
     finally:
         session.started.clear()  # start events of this call's chunks

@@ -5,41 +5,28 @@ wider detector does better on the same rows) or latent-limited (everything stays
 the label is rough in the latent coordinates)? :func:`learning_curve` answers it on the first n rows of a
 seed's pool of labeled uniform samples, for several n, scored on the shared test set.
 
-The detector is trained by :func:`fit_detector`, a plain-torch loop equal to one ``supv``/``supv_bd`` round
-of the pipeline (:class:`~neuralcol.lit.detector.DetectorLitModule` under the rounds callback): the same
-losses, Adam, batch size and epochs, the 80/20 split by row id (``id % 5 == 4`` validates) and the weights of
-the epoch with the best validation accuracy.
+The detector is trained by :func:`fit_rows`: one ``supv``/``supv_bd`` bootstrap round of the pipeline's own
+training (D_c datamodule, :class:`~neuralcol.lit.detector.DetectorLitModule`, the round callback and the Trainer,
+built from the detector config): the same losses, optimizer, batch size and epochs, the 80/20 split by row id
+(``id % 5 == 4`` validates) and the weights of the epoch with the best validation accuracy.
 """
 
 from __future__ import annotations
 
-import math
+import tempfile
 import time
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import torch
 
+from neuralcol.active.rounds import Schedule
+from neuralcol.lit.detector import detector_module
 from neuralcol.metrics.detection import detection_metrics
-from neuralcol.nn.detector import CollisionDetector, detector_losses
-from neuralcol.samples.datamodule import detector_targets
-from neuralcol.samples.store import VAL_EVERY, CollisionRows
-
-LR_SCHEDULES = ("constant", "cosine")
-
-
-def epoch_lr(base_lr: float, epoch: int, epochs: int, schedule: str = "constant") -> float:
-    """Learning rate of epoch ``epoch`` (0-based) of a training run of ``epochs`` epochs.
-
-    ``constant``: ``base_lr`` throughout (the paper's). ``cosine``: ``base_lr * (1 + cos(pi * epoch / epochs)) / 2``,
-    from ``base_lr`` at epoch 0 down to nearly 0 at the last epoch (never exactly 0, so no epoch is wasted).
-    """
-    if schedule not in LR_SCHEDULES:
-        raise ValueError(f"lr schedule {schedule!r}: expected one of {LR_SCHEDULES}")
-    if schedule == "constant" or epochs <= 1:
-        return float(base_lr)
-    e = min(max(int(epoch), 0), int(epochs) - 1)
-    return float(base_lr) * 0.5 * (1.0 + math.cos(math.pi * e / int(epochs)))
+from neuralcol.nn.detector import CollisionDetector
+from neuralcol.samples.datamodule import CollisionDataModule, detector_targets
+from neuralcol.samples.store import CollisionRows, Origin
 
 
 def take_rows(rows: CollisionRows, n: int) -> CollisionRows:
@@ -47,71 +34,44 @@ def take_rows(rows: CollisionRows, n: int) -> CollisionRows:
     return rows._replace(**{f: getattr(rows, f)[:n] for f in rows._fields})
 
 
-def fit_detector(net: CollisionDetector, rows: CollisionRows, pd_unit: float, loss: dict, w_b: float,
-                 use_boundary_set: bool, pd_clip: float, pd_floor: float | None, epochs: int, lr: float,
-                 batch_size: int, seed: int, lr_schedule: str = "constant", patience: int | None = None,
-                 ema_epochs: float | None = None) -> dict:
-    """Train ``net`` on ``rows`` (80/20 by row position, as D_c) and keep the best-validation epoch.
-
-    Args:
-        net: a fresh detector (trained in place).
-        rows: labeled rows (z, pd, pd_sub, subset, collides).
-        pd_unit, pd_clip, pd_floor: PD target scaling (:func:`~neuralcol.samples.datamodule.detector_targets`).
-        loss: ``w_pd, w_pdsum, w_r, w_ce, margin, temperature`` (``conf/detector/*.yaml`` -> ``loss``).
-        w_b: weight of L_b (0 for ``supv``).
-        use_boundary_set: keep D_b (``supv_bd``) or fold it into D_p (``supv``).
-        epochs, lr, batch_size: Adam schedule.
-        lr_schedule: ``constant`` or ``cosine`` over the epochs (:func:`epoch_lr`).
-        patience: stop once this many epochs passed without a better validation accuracy (None: all epochs).
-        ema_epochs: validate, select and keep an exponential moving average of the weights (``torch.optim.swa_utils``)
-            whose horizon is this many epochs (per-step decay ``1 - 1 / (ema_epochs * steps per epoch)``);
-            None: the raw weights.
-        seed: initialisation is the caller's; this seeds the shuffling.
+def fit_rows(net: CollisionDetector, rows: CollisionRows, test: CollisionRows, pd_unit: float, det: dict,
+             w_b: float, use_boundary_set: bool, seed: int) -> dict:
+    """Train ``net`` on ``rows`` as one bootstrap round of the pipeline's own training: its D_c datamodule (80/20
+    by row position), LightningModule, round callback (best-validation epoch kept) and Trainer, all built from
+    the detector config ``det`` (``conf/detector``), with ``det``'s ``epochs``, ``lr`` and ``batch_size``.
 
     Returns:
-        ``train_accuracy``, ``val_accuracy``, ``epoch`` (selected), ``epochs_run``, ``seconds``; the net holds the
-        selected weights (the averaged ones with ``ema_epochs``).
+        ``train_accuracy``, ``val_accuracy``, ``epoch`` (selected, 0-based), ``epochs_run``, ``seconds``, and
+        ``test`` (detection metrics on ``test``); the net holds the selected weights.
     """
-    z, pd, pd_sub, subset = detector_targets(rows, pd_unit, pd_clip, use_boundary_set, pd_floor)
-    epochs_run = 0
-    val = torch.as_tensor(np.arange(len(z)) % VAL_EVERY == VAL_EVERY - 1)
-    tr = torch.nonzero(~val).flatten()
-    kw = {k: float(loss[k]) for k in ("w_pd", "w_pdsum", "w_r", "w_ce", "margin", "temperature")}
-    kw["ce_on_boundary"] = bool(loss.get("ce_on_boundary", False))
-    opt = torch.optim.Adam(net.parameters(), lr=lr)
-    gen = torch.Generator().manual_seed(int(seed))
-    best = (-1.0, -1, None, float("nan"))
-    ema = None
-    if ema_epochs:
-        steps = max(1, -(-len(tr) // int(batch_size)))
-        decay = 1.0 - 1.0 / (float(ema_epochs) * steps)
-        ema = torch.optim.swa_utils.AveragedModel(net, multi_avg_fn=torch.optim.swa_utils.get_ema_multi_avg_fn(decay))
-    model = net if ema is None else ema.module
+    from hydra.utils import instantiate
+
     t0 = time.perf_counter()
-    for epoch in range(int(epochs)):
-        for group in opt.param_groups:
-            group["lr"] = epoch_lr(lr, epoch, int(epochs), lr_schedule)
-        net.train()
-        for b in tr[torch.randperm(len(tr), generator=gen)].split(int(batch_size)):
-            out = net(z[b])
-            total = detector_losses(out, pd[b], pd_sub[b], subset[b], w_b=w_b, **kw).total
-            opt.zero_grad()
-            total.backward()
-            opt.step()
-            if ema is not None:
-                ema.update_parameters(net)
-        model.eval()
-        with torch.no_grad():
-            acc = float(((model(z[val]).logit > 0) == (pd[val] > 0)).float().mean()) if val.any() else 0.0
-            if acc > best[0]:
-                tr_acc = float(((model(z[tr]).logit > 0) == (pd[tr] > 0)).float().mean())
-                best = (acc, epoch, {k: v.clone() for k, v in model.state_dict().items()}, tr_acc)
-        epochs_run = epoch + 1
-        if patience is not None and epoch - best[1] >= int(patience):
-            break
-    net.load_state_dict(best[2])
-    return {"val_accuracy": best[0], "epoch": best[1], "train_accuracy": best[3], "epochs_run": epochs_run,
-            "seconds": time.perf_counter() - t0}
+    sched = Schedule(int(det["epochs"]), float(det["lr"]), int(det["batch_size"]))
+    targets = det["targets"]
+    with tempfile.TemporaryDirectory(prefix="neuralcol_curve_") as tmp:
+        dm = CollisionDataModule(Path(tmp) / "rows.h5", rows.z.shape[1], rows.pd_sub.shape[1], sched.batch_size,
+                                 pd_unit, float(targets["pd_clip"]), use_boundary_set=use_boundary_set, seed=seed,
+                                 pd_floor=targets.get("pd_floor"))
+        dm.append(rows.z, rows.pd, rows.pd_sub, rows.collides, rows.subset, 0, Origin.UNIFORM)
+        module = detector_module(net, det, w_b, sched.lr)
+        rounds = instantiate(det["rounds"], max_rounds=0, stop_at_elbow=False, select_best_val=True)(
+            datamodule=dm, acquire=None, evaluate=lambda m: test_metrics(m.net, test), bootstrap=sched,
+            update=sched, checkpoint_path=Path(tmp) / "rows.ckpt", seed=seed)
+        trainer = instantiate(det["trainer"], enable_progress_bar=False)(max_epochs=rounds.max_epochs, logger=False,
+                                                                         callbacks=[rounds])
+        trainer.fit(module, datamodule=dm)
+        rec = rounds.rounds[0]
+        z, pd, _, _ = detector_targets(rows, pd_unit, float(targets["pd_clip"]), use_boundary_set,
+                                       targets.get("pd_floor"))
+        train = torch.as_tensor(~dm.store.split_mask())
+        dm.close()
+    net = module.net.cpu().eval()
+    with torch.no_grad():
+        train_acc = float(((net(z[train]).logit > 0) == (pd[train] > 0)).float().mean())
+    return {"val_accuracy": rec["val_accuracy"], "epoch": rec["selected_epoch"], "train_accuracy": train_acc,
+            "epochs_run": rec["epochs"], "seconds": time.perf_counter() - t0,
+            "test": {k: rec[k] for k in detection_metrics(np.zeros(1, bool), np.zeros(1, bool))}}
 
 
 def test_metrics(net: CollisionDetector, test: CollisionRows) -> dict:
@@ -158,12 +118,12 @@ def learning_curve(rows: CollisionRows, test: CollisionRows, sizes: Sequence[int
         variants: ``{"name": ..., **overrides}``; overrides of the detector config ``det`` (keys of
             ``det["net"]``: ``state_dim``, ``hidden``, ``decoder_features``, and ``width_factor`` scaling both
             widths; of ``det["targets"]``: ``pd_clip``,
-            ``pd_floor``; of ``det["loss"]``; ``lr_schedule``, ``epochs``, ``patience``, ``ema_epochs``; and ``w_b``,
+            ``pd_floor``; of ``det["loss"]``; ``epochs``; and ``w_b``,
             ``use_boundary_set``).
         build: ``net_config (dict) -> CollisionDetector`` (fresh, seeded by the caller's torch seed).
         pd_unit: the labeler's clearance cap.
-        det: the detector config (``conf/detector/*.yaml``) with ``epochs``, ``lr``, ``batch_size`` (and optionally
-            ``lr_schedule``, default constant, ``patience`` and ``ema_epochs``, default none).
+        det: the detector config (``conf/detector/*.yaml``): ``epochs``, ``lr``, ``batch_size``, ``loss``,
+            ``targets`` and the components it builds (``optimizer``, ``rounds``, ``trainer``).
         seeds: training seeds.
         box_lo, box_hi: (D,) the latent box (inputs of the references).
         references: also score HistGradientBoosting and kNN.
@@ -190,19 +150,14 @@ def learning_curve(rows: CollisionRows, test: CollisionRows, sizes: Sequence[int
                 f = float(over["width_factor"])
                 net_cfg["state_dim"], net_cfg["hidden"] = (max(1, round(f * int(net_cfg[k])))
                                                            for k in ("state_dim", "hidden"))
-            targets = {**det["targets"], **{k: over[k] for k in ("pd_clip", "pd_floor") if k in over}}
-            loss = {**det["loss"], **over.get("loss", {})}
+            det_v = {**det, "targets": {**det["targets"], **{k: over[k] for k in ("pd_clip", "pd_floor") if k in over}},
+                     "loss": {**det["loss"], **over.get("loss", {})}, "epochs": int(over.get("epochs", det["epochs"]))}
             for seed in seeds:
                 torch.manual_seed(int(seed))
                 net = build(net_cfg)
-                fit = fit_detector(net, sub, pd_unit, loss, float(over.get("w_b", 0.0)),
-                                   bool(over.get("use_boundary_set", False)), float(targets["pd_clip"]),
-                                   targets.get("pd_floor"), int(over.get("epochs", det["epochs"])),
-                                   float(det["lr"]), int(det["batch_size"]), int(seed),
-                                   str(over.get("lr_schedule", det.get("lr_schedule", "constant"))),
-                                   over.get("patience", det.get("patience")),
-                                   over.get("ema_epochs", det.get("ema_epochs")))
-                rec = {"size": int(n), "model": var["name"], "seed": int(seed), **fit, "test": test_metrics(net, test),
+                fit = fit_rows(net, sub, test, pd_unit, det_v, float(over.get("w_b", 0.0)),
+                               bool(over.get("use_boundary_set", False)), int(seed))
+                rec = {"size": int(n), "model": var["name"], "seed": int(seed), **fit,
                        "n_parameters": int(sum(p.numel() for p in net.parameters()))}
                 out.append(rec)
                 log(f"  n={n}: {var['name']} seed {seed}: train {fit['train_accuracy']:.4f}, val "

@@ -5,14 +5,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-import lightning as L
 import torch
 import torch.nn.functional as F
 
+from neuralcol.lit.base import SplitStepModule
 from neuralcol.nn.autoencoder import BilevelAutoencoder
 
 
-class AutoencoderLitModule(L.LightningModule):
+class AutoencoderLitModule(SplitStepModule):
     """Trains level 1 (``stage=1``) or level 2 with level 1 frozen (``stage=2``) of a bilevel autoencoder.
 
     Stage-1 loss: ``mse + w_sparsity * H(A) + w_smoothness * mean_edges |A_i - A_j|^2 + w_balance * KL``,
@@ -114,12 +114,6 @@ class AutoencoderLitModule(L.LightningModule):
         self.log(f"{split}/mse", mse, on_epoch=True, on_step=False, prog_bar=split == "train")
         self.log(f"{split}/loss", loss, on_epoch=True, on_step=False)
         return loss
-
-    def training_step(self, batch, batch_idx):
-        return self.step(batch, "train")
-
-    def validation_step(self, batch, batch_idx):
-        self.step(batch, "val")
 
     def configure_optimizers(self):
         params = [p for p in self.net.parameters() if p.requires_grad]

@@ -2,18 +2,21 @@
 
 from __future__ import annotations
 
-import lightning as L
+from collections.abc import Callable
+
 import torch
 
+from neuralcol.lit.base import SplitStepModule
 from neuralcol.nn.detector import CollisionDetector, detector_losses
 
 
-class DetectorLitModule(L.LightningModule):
+class DetectorLitModule(SplitStepModule):
     """Trains a :class:`~neuralcol.nn.detector.CollisionDetector` on batches ``(z, pd, pd_sub, subset)``.
 
     Args:
         net: the detector.
-        lr: Adam learning rate (changed between rounds with :meth:`set_lr`).
+        optimizer: partial of a torch optimizer taking ``(params, lr=...)`` (``detector.optimizer``).
+        lr: its learning rate (changed between rounds with :meth:`set_lr`).
         w_pd, w_pdsum, w_r, w_ce, w_b: loss weights (paper: 5, 0.2, 2, 2, 0.5; ``supv`` uses w_b = 0).
         margin: ranking margin alpha (in PD target units).
         temperature: smooth-max temperature of the aggregated depth (PD target units).
@@ -21,12 +24,14 @@ class DetectorLitModule(L.LightningModule):
         boundary_reduction: how L_b averages its D_b rows, "boundary" (paper) or "batch" (same function).
     """
 
-    def __init__(self, net: CollisionDetector, lr: float, w_pd: float, w_pdsum: float, w_r: float, w_ce: float,
+    def __init__(self, net: CollisionDetector, optimizer: Callable, lr: float, w_pd: float, w_pdsum: float,
+                 w_r: float, w_ce: float,
                  w_b: float, margin: float, temperature: float, ce_on_boundary: bool = False,
                  boundary_reduction: str = "boundary"):
         super().__init__()
-        self.save_hyperparameters(ignore=["net"])
+        self.save_hyperparameters(ignore=["net", "optimizer"])
         self.net = net
+        self.optimizer = optimizer
         self.lr = float(lr)
         self.loss_kwargs = dict(w_pd=w_pd, w_pdsum=w_pdsum, w_r=w_r, w_ce=w_ce, w_b=w_b, margin=margin,
                                 temperature=temperature, ce_on_boundary=bool(ce_on_boundary),
@@ -35,7 +40,7 @@ class DetectorLitModule(L.LightningModule):
     def forward(self, z: torch.Tensor):
         return self.net(z)
 
-    def _step(self, batch, split: str) -> torch.Tensor:
+    def step(self, batch, split: str) -> torch.Tensor:
         z, pd, pd_sub, subset = batch
         out = self.net(z)
         losses = detector_losses(out, pd, pd_sub, subset, **self.loss_kwargs)
@@ -46,14 +51,8 @@ class DetectorLitModule(L.LightningModule):
                       on_step=False, on_epoch=True, batch_size=bs)
         return losses.total
 
-    def training_step(self, batch, batch_idx):
-        return self._step(batch, "train")
-
-    def validation_step(self, batch, batch_idx):
-        self._step(batch, "val")
-
     def configure_optimizers(self):
-        return torch.optim.Adam(self.net.parameters(), lr=self.lr)
+        return self.optimizer(self.net.parameters(), lr=self.lr)
 
     def set_lr(self, lr: float) -> None:
         """Set the learning rate of the running optimizer (and of the next one configured)."""
@@ -83,3 +82,10 @@ class DetectorLitModule(L.LightningModule):
         out = torch.cat([self.net(c.to(dev)).logit.cpu() for c in z.split(batch)]) if len(z) else torch.zeros(0)
         self.net.train(was_training)
         return out
+
+
+def detector_module(net: CollisionDetector, det: dict, w_b: float, lr: float) -> DetectorLitModule:
+    """The LightningModule of ``det`` (``conf/detector``: its ``optimizer`` and ``loss``) around ``net``."""
+    from hydra.utils import instantiate
+
+    return DetectorLitModule(net, optimizer=instantiate(det["optimizer"]), lr=lr, w_b=float(w_b), **det["loss"])

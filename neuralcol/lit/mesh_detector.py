@@ -2,29 +2,32 @@
 
 from __future__ import annotations
 
-import lightning as L
+from collections.abc import Callable
+
 import torch
 import torch.nn.functional as F
 
+from neuralcol.lit.base import SplitStepModule
 from neuralcol.nn.mesh_detector import MeshDetector
 
 
-class MeshDetectorLitModule(L.LightningModule):
+class MeshDetectorLitModule(SplitStepModule):
     """Trains :class:`MeshDetector` on batches ``(features (B, 3 P), collides (B,))``.
 
     Args:
-        net: the detector. lr: Adam learning rate. weight_decay: Adam weight decay.
+        net: the detector. optimizer: partial of a torch optimizer taking the parameters
+            (``mesh_detector.train.optimizer``).
         pos_weight: weight of the colliding rows in the cross-entropy (None: 1).
     """
 
-    def __init__(self, net: MeshDetector, lr: float, weight_decay: float = 0.0, pos_weight: float | None = None):
+    def __init__(self, net: MeshDetector, optimizer: Callable, pos_weight: float | None = None):
         super().__init__()
-        self.save_hyperparameters(ignore=["net"])
+        self.save_hyperparameters(ignore=["net", "optimizer"])
         self.net = net
-        self.lr, self.weight_decay = float(lr), float(weight_decay)
+        self.optimizer = optimizer
         self.pos_weight = None if pos_weight is None else float(pos_weight)
 
-    def _step(self, batch, split: str) -> torch.Tensor:
+    def step(self, batch, split: str) -> torch.Tensor:
         feats, y = batch
         logit = self.net.logit_from_features(feats)
         pw = None if self.pos_weight is None else torch.as_tensor(self.pos_weight, device=logit.device)
@@ -34,11 +37,5 @@ class MeshDetectorLitModule(L.LightningModule):
         self.log(f"{split}/mesh_accuracy", acc, prog_bar=False, on_epoch=True, on_step=False)
         return loss
 
-    def training_step(self, batch, batch_idx):
-        return self._step(batch, "train")
-
-    def validation_step(self, batch, batch_idx):
-        self._step(batch, "val")
-
     def configure_optimizers(self):
-        return torch.optim.Adam(self.net.parameters(), lr=self.lr, weight_decay=self.weight_decay)
+        return self.optimizer(self.net.parameters())

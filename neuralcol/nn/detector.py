@@ -116,7 +116,7 @@ class CollisionDetector(nn.Module):
 
         Without gradients on the CPU, a batch larger than ``inference_block`` rows runs block by block: the
         (block, K, hidden) intermediates then stay in cache (with the split CP layer of ``_cp``: 1.9x faster at
-        batch 4096 on a 2-core machine; ``python -m bench.detector_forward RUN_DIR``). The result is the same.
+        batch 4096 on a 2-core machine; ``python -m research.detector_forward RUN_DIR``). The result is the same.
         """
         if z_all.ndim != 2 or z_all.shape[1] != self.latent_dim:
             raise ValueError(f"z_all has shape {tuple(z_all.shape)}, expected (B, {self.latent_dim})")
@@ -257,18 +257,34 @@ def net_widths(net_cfg: dict) -> dict:
     return {k: max(1, round(w * int(net_cfg[k]))) for k in ("state_dim", "hidden")}
 
 
-def build_detector(space, det: dict) -> CollisionDetector:
+def detector_for_space(space, state_dim: int, hidden: int, width: float = 1.0, normalize_inputs: bool = True,
+                       decoder_features: bool = False) -> CollisionDetector:
+    """A detector for the codes of ``space`` (the ``_target_`` of ``detector.net``; docs/detector.md).
+
+    Args:
+        space: the latent space (its sub-domains, box and level-1 decoder).
+        state_dim, hidden: widths of S_0 and of the hidden layers, times ``width`` (rounded, at least 1).
+        normalize_inputs: map the box Z to [-1, 1] inside the network.
+        decoder_features: also feed the level-1 decoder's first layer ``act(z0 w + b)``.
+    """
     l2 = (space.dim - space.n_parts) // space.n_parts
-    box = (space.box_lo.detach().cpu(), space.box_hi.detach().cpu()) if det["net"]["normalize_inputs"] \
-        else (None, None)
-    feats = decoder_code_features(space) if det["net"].get("decoder_features", False) else None
-    return CollisionDetector(space.n_parts, l2, **net_widths(det["net"]), box_lo=box[0], box_hi=box[1],
-                             code_features=feats)
+    box = (space.box_lo.detach().cpu(), space.box_hi.detach().cpu()) if normalize_inputs else (None, None)
+    feats = decoder_code_features(space) if decoder_features else None
+    widths = net_widths({"state_dim": state_dim, "hidden": hidden, "width": width})
+    return CollisionDetector(space.n_parts, l2, **widths, box_lo=box[0], box_hi=box[1], code_features=feats)
+
+
+def build_detector(space, det: dict) -> CollisionDetector:
+    """The detector ``det["net"]`` configures (a ``_partial_`` ``_target_`` taking the space) for ``space``."""
+    from hydra.utils import instantiate
+
+    return instantiate(det["net"])(space)
 
 
 def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, pd_unit: float) -> None:
     blob = {"state": net.state_dict(), "n_components": net.n_components, "level2_dim": net.level2_dim,
-            "net": {**det["net"], **net_widths(det["net"]), "width": 1.0},  # widths as built
+            "net": {**{k: v for k, v in det["net"].items() if not k.startswith("_")}, **net_widths(det["net"]),
+                    "width": 1.0},  # widths as built
             "method": method["name"], "pd_unit": pd_unit,
             "code_features": None if net.feature_activation is None else
             {"hidden": net.n_code_features, "activation": net.feature_activation}}

@@ -57,7 +57,7 @@ class FastDetector:
         compile: compile the block forward with ``torch.compile`` (needs a C++ compiler on the CPU, Triton on
             CUDA); False runs the copy eagerly (for comparison, or where no compiler exists).
         block: rows per compiled call (default on the CPU: 1024 in float32, 2048 in bfloat16, the fastest of
-            256-4096 on a 2-core AVX-512 machine, ``python -m bench.detector_forward RUN --fast-blocks ...``,
+            256-4096 on a 2-core AVX-512 machine, ``python -m research.detector_forward RUN --fast-blocks ...``,
             docs/model_size.md; on CUDA 65536).
         recheck_band: bfloat16 only: rows whose bfloat16 logit lies within this distance of 0 are recomputed by a
             float32 copy (compiled like this one), so their outputs, and every predicted label whose bfloat16

@@ -106,9 +106,6 @@ class LatentSpace(nn.Module):
         lo, hi = self.box_lo.to(z_all), self.box_hi.to(z_all)
         return ((z_all < lo) | (z_all > hi)).any(-1)
 
-    def clamp_to_box(self, z_all: torch.Tensor) -> torch.Tensor:
-        return torch.maximum(torch.minimum(z_all, self.box_hi.to(z_all)), self.box_lo.to(z_all))
-
     # ------------------------------------------------------------------ persistence
     def save(self, path: str | Path) -> Path:
         """Save weights, normaliser, box, partition and the architecture to one file."""

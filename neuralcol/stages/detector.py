@@ -18,13 +18,14 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 import torch
+from hydra.utils import instantiate
 
-from neuralcol.active.acquisition import ProjectedAcquisition, UniformAcquisition
-from neuralcol.active.rounds import DataRounds, Schedule
-from neuralcol.lit.detector import DetectorLitModule
+from neuralcol.active.rounds import Schedule
+from neuralcol.lit.detector import DetectorLitModule, detector_module
 from neuralcol.metrics.detection import detection_metrics
 from neuralcol.metrics.tensorboard import log_round_examples
 from neuralcol.nn.detector import CollisionDetector, build_detector, net_widths, save_detector
+from neuralcol.rundir import RunDir
 from neuralcol.samples.cache import label_failures, samples_cache_dir, shared_test_set
 from neuralcol.samples.datamodule import CollisionDataModule
 from neuralcol.samples.oracle import LatentOracle
@@ -111,7 +112,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
         raise ValueError(f"method.name={name!r}; use one of {METHODS}")
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    rounds_path = run_dir / "detector_rounds.json"
+    rounds_path = RunDir(run_dir).detector_rounds
     if rounds_path.is_file():
         done = json.loads(rounds_path.read_text())
         if done.get("finished"):
@@ -125,21 +126,14 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     test_failures = label_failures(shared / f"test_s{det['test_seed']}.h5")
     # 2. D_c, the acquisition and the rounds
     pd_unit = float(labeler.cap)
-    dm = CollisionDataModule(run_dir / "dc.h5", space.dim, space.n_parts, int(det["batch_size"]), pd_unit,
+    dm = CollisionDataModule(RunDir(run_dir).dc, space.dim, space.n_parts, int(det["batch_size"]), pd_unit,
                              float(det["targets"]["pd_clip"]), use_boundary_set=bool(method["use_boundary_set"]),
                              seed=seed, pd_floor=det["targets"].get("pd_floor"))
     pool_path = shared / f"uniform_s{seed}.h5"
-    if method["acquisition"] == "projected":
-        acquire = ProjectedAcquisition(pool_path, oracle, seed, space.box_lo, space.box_hi,
-                                       float(method["projected_fraction"]), det["newton"],
-                                       start=str(method.get("start", "dc")),
-                                       candidates=int(method.get("candidates", 10)),
-                                       project=bool(method.get("project", True)))
-    elif method["acquisition"] == "uniform":
-        acquire = UniformAcquisition(pool_path, oracle, seed)
-    else:
-        raise ValueError(f"method.acquisition={method['acquisition']!r}; use 'uniform' or 'projected'")
-    ckpt = run_dir / "checkpoints" / "detector.ckpt"
+    # the method's acquisition (method.acquisition: UniformAcquisition or ProjectedAcquisition, built by Hydra)
+    acquire = instantiate(method["acquisition"])(pool_path, oracle, seed)
+    rd = RunDir(run_dir)
+    ckpt = rd.checkpoint
     resuming = ckpt.is_file()
     if not resuming and len(dm) > 0:
         dm.store.truncate(0)  # an earlier attempt died before its first checkpoint
@@ -157,16 +151,15 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
                 rows = dm.store.read()
                 rows = CollisionRows(*(col[rows.round == last["round"]] for col in rows))
                 log_round_examples(logger.experiment, space, rows, int(last["dataset_size"]),
-                                   run_dir / "round_examples", int(det["tensorboard_examples"]))
+                                   RunDir(run_dir).round_examples, int(det["tensorboard_examples"]))
         print(f"[{name}] round {last['round']}: |D_c| = {last['dataset_size']}, test accuracy "
               f"{last['accuracy']:.4f}, FNR {last['fnr']:.4f}, FPR {last['fpr']:.4f} (base rate "
               f"{last['base_rate']:.3f}); labeling {last['label_seconds']:.0f} s, training "
               f"{last['train_seconds']:.0f} s", flush=True)
 
-    rounds_cb = DataRounds(dm, acquire, lambda m: evaluate_on_test(m, test), sched["bootstrap"], sched["update"],
-                           int(det["n_aug"]), int(det["max_rounds"]), bool(det["stop"]["kneedle"]),
-                           int(det["stop"]["min_points"]), float(det["stop"]["sensitivity"]), ckpt, seed,
-                           select_best_val=bool(det["select_best_val"]), on_round=on_round, extra_eval=round_eval)
+    rounds_cb = instantiate(det["rounds"])(datamodule=dm, acquire=acquire, evaluate=lambda m: evaluate_on_test(m, test),
+                                           bootstrap=sched["bootstrap"], update=sched["update"], checkpoint_path=ckpt,
+                                           seed=seed, on_round=on_round, extra_eval=round_eval)
 
     def summary() -> dict:
         return {"method": name, "stopped_by": rounds_cb.stopped_by, "elbow_dataset_size": rounds_cb.elbow,
@@ -179,25 +172,17 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
 
     L.seed_everything(seed, workers=False, verbose=False)
     net = build_detector(space, det)
-    l_cfg = det["loss"]
-    module = DetectorLitModule(net, lr=sched["bootstrap"].lr, w_pd=l_cfg["w_pd"], w_pdsum=l_cfg["w_pdsum"],
-                               w_r=l_cfg["w_r"], w_ce=l_cfg["w_ce"], w_b=float(method["w_b"]),
-                               margin=l_cfg["margin"], temperature=l_cfg["temperature"],
-                               ce_on_boundary=bool(l_cfg.get("ce_on_boundary", False)),
-                               boundary_reduction=str(l_cfg.get("boundary_reduction", "boundary")))
+    module = detector_module(net, det, float(method["w_b"]), sched["bootstrap"].lr)
     if not resuming:  # bootstrap: N_init uniform samples (round 0)
-        boot = acquire.take(int(det["n_init"]))
+        boot = acquire.take_uniform(int(det["n_init"]))
         dm.append(boot.z, boot.pd, boot.pd_sub, boot.collides, boot.subset, 0, boot.origin)
         rounds_cb.add_label_seconds(boot.label_seconds)
-    trainer = L.Trainer(max_epochs=rounds_cb.max_epochs, logger=logger if logger is not None else False,
-                        callbacks=[rounds_cb], reload_dataloaders_every_n_epochs=1, enable_checkpointing=False,
-                        check_val_every_n_epoch=int(det["val_every"]), num_sanity_val_steps=0,
-                        enable_progress_bar=bool(det["progress_bar"]), enable_model_summary=False,
-                        accelerator=det["accelerator"], devices=1, log_every_n_steps=1)
+    trainer = instantiate(det["trainer"])(max_epochs=rounds_cb.max_epochs,
+                                          logger=logger if logger is not None else False, callbacks=[rounds_cb])
     trainer.fit(module, datamodule=dm, ckpt_path=str(ckpt) if resuming else None)
     final = module.net.cpu()
-    save_detector(run_dir / "detector.pt", final, det, method, pd_unit)
-    preds = run_dir / "test_predictions.npz"
+    save_detector(rd.detector, final, det, method, pd_unit)
+    preds = rd.test_predictions
     with atomic_path(preds) as tmp:
         np.savez_compressed(tmp, **predict_test_set(final, test))
     out = {"rounds": rounds_cb.rounds, "detector": {**summary(), "resumed": resuming,

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from neuralcol.handler.alm import ALMSettings
+from neuralcol.handler.alm import ALMSettings, Resolution
 from neuralcol.handler.resolve import handle_codes, verified_escalation
 from neuralcol.samples.oracle import LatentOracle
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 import torch
+from hydra.utils import instantiate
 from torch.utils.data import DataLoader, TensorDataset
 
 from neuralcol.geometry.contact_pairs import ContactFeatures, select_contact_pairs
@@ -83,7 +84,7 @@ def train_mesh_detector(space, dc_z: np.ndarray, dc_collides: np.ndarray, real_v
     val, train = order[:n_val], order[n_val:]
     L.seed_everything(seed, workers=False, verbose=False)
     net = MeshDetector(feats, hidden=int(c["net"]["hidden"]))
-    module = MeshDetectorLitModule(net, lr=float(tc["lr"]), weight_decay=float(tc["weight_decay"]))
+    module = MeshDetectorLitModule(net, optimizer=instantiate(tc["optimizer"]))
     xt, yt = torch.as_tensor(x), torch.as_tensor(y)
     g = torch.Generator().manual_seed(seed)
     train_dl = DataLoader(TensorDataset(xt[train], yt[train]), batch_size=int(tc["batch_size"]), shuffle=True,

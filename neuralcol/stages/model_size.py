@@ -130,7 +130,7 @@ def _skill(accuracy: float, majority: float | None) -> float | None:
     return (accuracy - float(majority)) / (1.0 - float(majority))
 
 
-def run_record(metrics: dict, name: str) -> dict:
+def size_record(metrics: dict, name: str) -> dict:
     """The sizes and scores of one finished run (its ``metrics.json``) as a record of the rule."""
     k = int(metrics["latent"]["n_parts"])
     det, last = metrics["detector"], metrics["rounds"][-1]
@@ -149,9 +149,9 @@ def run_record(metrics: dict, name: str) -> dict:
             "seconds": float(sum(r.get("label_seconds", 0) + r.get("train_seconds", 0) for r in metrics["rounds"]))}
 
 
-def decide(latents: list[dict], records: list[dict], recon_tol: float, accuracy_tol: float,
+def apply_size_rule(latents: list[dict], records: list[dict], recon_tol: float, accuracy_tol: float,
            latent_rule: str = "tolerance") -> dict:
-    """The rule (module docstring) on latent records and detector records (:func:`run_record`; only those at the
+    """The rule (module docstring) on latent records and detector records (:func:`size_record`; only those at the
     chosen latent space compete): ``model_size.json``'s content."""
     lat = choose_latent(latents, recon_tol, latent_rule)
     knee = knee_latent(latents) if latent_rule == "knee" else None
@@ -173,12 +173,12 @@ def decide(latents: list[dict], records: list[dict], recon_tol: float, accuracy_
 
 def choose_from_records(records: list[dict], recon_tol: float, accuracy_tol: float,
                         latent_rule: str = "tolerance") -> dict:
-    """The rule on the runs of a full size sweep (records of :func:`run_record`; runs of one latent space share
+    """The rule on the runs of a full size sweep (records of :func:`size_record`; runs of one latent space share
     its autoencoder, hence its reconstruction error)."""
     latents = {}
     for r in records:
         latents.setdefault((r["n_components"], r["level2_dim"]), r)
-    return decide(list(latents.values()), records, recon_tol, accuracy_tol, latent_rule)
+    return apply_size_rule(list(latents.values()), records, recon_tol, accuracy_tol, latent_rule)
 
 
 def _set(cfg: DictConfig, dotted: dict) -> DictConfig:
@@ -240,10 +240,10 @@ def search_model_size(cfg: DictConfig, run_dir: Path, ds, feats, run_fn: Callabl
             (sub_dir / ".hydra").mkdir(parents=True, exist_ok=True)
             OmegaConf.save(sub, sub_dir / ".hydra" / "config.yaml")
             metrics = json.loads(done.read_text()) if done.is_file() else run_fn(sub, sub_dir)
-            records.append(run_record(metrics, name))
+            records.append(size_record(metrics, name))
             print(f"model_size: detector width x{float(w):g}: {records[-1]['n_parameters']} parameters, "
                   f"accuracy {records[-1]['accuracy']:.4f} at {budget} samples", flush=True)
-        doc = {**decide(latents, records, float(ms.recon_tol), float(ms.accuracy_tol), str(ms.latent_rule)),
+        doc = {**apply_size_rule(latents, records, float(ms.recon_tol), float(ms.accuracy_tol), str(ms.latent_rule)),
                "budget": int(budget),
                "default": {"n_components": int(cfg.dataset.latent.n_components),
                            "level2_dim": int(cfg.dataset.latent.level2_dim),

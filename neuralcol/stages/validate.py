@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from omegaconf import DictConfig, OmegaConf
 
+from neuralcol.collision.backends import labeler_problems
 from neuralcol.errors import UserInputError
 
 METHODS = ("supv", "supv_bd", "active", "active_paper")
@@ -50,10 +51,11 @@ def config_problems(cfg: DictConfig) -> list[str]:
                 "detector.targets.pd_clip", "detector.net.width"):
         need(key, lambda v: float(v) > 0, "must be > 0")
     need("labeling.labeler.touch_tol", lambda v: float(v) >= 0, "must be >= 0")
+    if _get(cfg, "labeling.labeler") is not None:  # its _target_ (labeling=<backend>) and its settings
+        problems += labeler_problems(cfg.labeling)
     need("method.projected_fraction", lambda v: 0 <= float(v) <= 1, "must lie in [0, 1]")
     choices = {"detector.newton.coordinates": ("box", "raw"), "autoencoder.box_from": ("train", "all"),
                "autoencoder.level1.activation": ("tanh", "linear"), "method.start": ("dc", "uncertain"),
-               "labeling.backend": ("cpu", "gpu", "fcl", "auto"),
                "detector.loss.boundary_reduction": ("boundary", "batch")}  # nn.detector.BOUNDARY_REDUCTIONS
     for key, allowed in choices.items():
         if _get(cfg, key) is not None:

@@ -1,6 +1,6 @@
 """Ablation of two training choices of the detector that the paper does not make (docs/detector.md).
 
-``python -m bench.detector_ablation [--dataset-key KEY] [--sizes 2000 6000] [--seeds 0 1]``
+``python -m research.detector_ablation [--dataset-key KEY] [--sizes 2000 6000] [--seeds 0 1]``
 
 Trains the detector (paper loss weights, Adam lr 1e-3, batch 512, 100 epochs) on the first N rows of a cached
 pool of labeled uniform samples (written by ``python -m experiments.run``, ``<cache>/collision/<key>/
@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from neuralcol.data.collision_datamodule import detector_targets
-from neuralcol.data.collision_store import CollisionStore
 from neuralcol.nn.detector import CollisionDetector, detector_losses
+from neuralcol.samples.datamodule import detector_targets
+from neuralcol.samples.store import CollisionStore
 
 
 def _read(path: Path):
@@ -68,7 +68,7 @@ def main() -> None:
     parser.add_argument("--dataset-key", default=None, help="folder under <cache>/collision (default: the only one)")
     parser.add_argument("--sizes", type=int, nargs="+", default=[2000, 6000])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
-    parser.add_argument("--out", type=Path, default=Path("bench/detector_ablation.json"))
+    parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "detector_ablation.json")
     args = parser.parse_args()
     root = args.cache / "collision"
     keys = [args.dataset_key] if args.dataset_key else sorted(p.name for p in root.iterdir() if p.is_dir())

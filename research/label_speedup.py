@@ -1,14 +1,14 @@
 """Full label speed of this checkout against another one, side by side (interleaved rounds, one core each).
 
     git worktree add /tmp/neuralcol-old <commit>
-    python -m bench.label_speedup --old /tmp/neuralcol-old [--latent-space .cache/autoencoders/<key>/latent_space.pt]
+    python -m research.label_speedup --old /tmp/neuralcol-old [--latent-space .cache/autoencoders/<key>/latent_space.pt]
 
 Each round runs one subprocess per checkout (``OMP_NUM_THREADS=1``), alternating, that labels the same meshes
 with ``ExactLabeler.label`` after a warm-up (numba compiled or loaded outside the timing) and reports the mean
 ms per mesh and a digest of the labels, so the two checkouts are also checked for equal labels. Meshes: the 71
 SCAPE meshes (labeler built on mesh 0, one part), and with ``--latent-space`` the first ``--n-poses`` codes of
 U(Z) (seed 1000003, the test set's) decoded by that latent space: the pose workload of the pipeline, labeled
-with the latent space's partition.
+with the latent space's partition. SCAPE is read from ``paths.data_dir`` (``NEURALCOL_DATA``).
 Results: median over rounds and the ratio of medians, printed and written to ``--out`` (JSON).
 """
 
@@ -19,6 +19,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -50,10 +51,10 @@ print(json.dumps(out))
 
 
 def _scape_npz(tmp: Path) -> Path:
-    from neuralcol import load_mesh_dataset
+    from bench.context import scape_config
+    from neuralcol.pipeline import RunContext
 
-    data = Path(os.environ.get("NEURALCOL_DATA", ROOT.parent / "shared" / "data")) / "scape"
-    ds = load_mesh_dataset(data)
+    ds = RunContext(scape_config()).dataset
     v = ds.vertices.numpy().astype(np.float64)
     path = tmp / "scape_meshes.npz"
     np.savez(path, v=v, faces=ds.faces.numpy(), rest=v[0])
@@ -63,8 +64,8 @@ def _scape_npz(tmp: Path) -> Path:
 def _poses_npz(tmp: Path, latent_space: Path, n: int) -> Path:
     import torch
 
-    from neuralcol.data.uniform_samples import uniform_codes
     from neuralcol.nn.latent_space import LatentSpace
+    from neuralcol.samples.uniform import uniform_codes
 
     space = LatentSpace.load(latent_space)
     with torch.no_grad():
@@ -86,8 +87,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: --old {args.old} is not a neuralcol checkout (no neuralcol/collision/labeler.py)",
               file=sys.stderr)
         return 2
-    tmp = HERE / "tmp"
-    tmp.mkdir(exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        return _compare(args, Path(tmp))
+
+
+def _compare(args, tmp: Path) -> int:
     sets = {"scape_meshes": str(_scape_npz(tmp))}
     if args.latent_space is not None:
         sets["decoded_poses"] = str(_poses_npz(tmp, args.latent_space, args.n_poses))

@@ -1,4 +1,4 @@
-"""The experiments that decided issue 15's fixes, rerunnable: ``python -m bench.diagnosis_ablations CMD ...``.
+"""The experiments that decided issue 15's fixes, rerunnable: ``python -m research.diagnosis_ablations CMD ...``.
 
 Every table of docs/diagnosis.md that is not produced by ``experiments.diagnose`` or a pipeline run comes from
 one of these commands (each prints its table and writes JSON with ``--out``). They use the shared caches of
@@ -44,25 +44,21 @@ class _Setup:
     """Data set, latent space, oracle (with an open pool), test rows and a uniform pool of a config."""
 
     def __init__(self, cfg, need_rows: int = 0, pool_seed: int = 0):
-        from hydra.utils import instantiate
-
-        from experiments.diagnose import _space
-        from neuralcol.active.oracle import LatentOracle
-        from neuralcol.collision.pool import LabelPool
-        from neuralcol.data.uniform_samples import uniform_rows
-        from neuralcol.stages.detector import samples_cache_dir, shared_test_set
+        from experiments.diagnose import diagnose_context
+        from neuralcol.samples.cache import shared_test_set
+        from neuralcol.samples.uniform import uniform_rows
 
         self.cfg = cfg
-        self.ds, self.space, self.report = _space(cfg)
-        lab = instantiate(cfg.labeling.labeler)(self.ds.faces.numpy(), self.space.rest_vertices.numpy(),
-                                                partition=self.space.partition.numpy())
-        self._pool = LabelPool(lab, **OmegaConf.to_container(cfg.labeling.pool))
-        self.oracle = LatentOracle(self.space, self._pool.__enter__())
+        ctx = diagnose_context(cfg)
+        self.ds, self.space, self.report = ctx.dataset, ctx.space, ctx.latent_space().report
+        lab = ctx.sample_labeler()
+        self._pool = ctx.pool(lab)
+        self.oracle = ctx.oracle(self._pool.__enter__())
         det = OmegaConf.to_container(cfg.detector, resolve=True)
         self.test, _, _ = shared_test_set(self.oracle, det, self.report["cache_key"], cfg.paths.cache_dir)
         self.rows = None
         if need_rows:
-            shared = samples_cache_dir(cfg.paths.cache_dir, self.report["cache_key"], lab)
+            shared = ctx.samples_dir(lab)
             self.rows = uniform_rows(shared / f"uniform_s{pool_seed}.h5", self.oracle, need_rows, pool_seed).rows
         self.cap, self.eps = float(lab.cap), float(lab.eps)
 
@@ -85,7 +81,7 @@ LOSS_VARIANTS = {
 def cmd_loss(args) -> dict:
     from neuralcol.collision.labeler import split_subsets
     from neuralcol.diagnose.curve import fit_detector, take_rows, test_metrics
-    from neuralcol.stages.detector import build_detector
+    from neuralcol.nn.detector import build_detector
 
     s = _Setup(_cfg(args.dataset, args.set), need_rows=args.rows)
     det = OmegaConf.to_container(s.cfg.detector, resolve=True)
@@ -151,7 +147,7 @@ def cmd_latent(args) -> dict:
     from sklearn.ensemble import HistGradientBoostingClassifier
     from sklearn.neighbors import KNeighborsClassifier
 
-    from experiments.diagnose import _space
+    from experiments.diagnose import diagnose_context
     from neuralcol.diagnose.curve import box_scaled
     from neuralcol.diagnose.latent import decoder_report
 
@@ -159,18 +155,14 @@ def cmd_latent(args) -> dict:
     for name in args.variants or list(LATENT_VARIANTS):
         cfg = _cfg(args.dataset, [*args.set, *LATENT_VARIANTS[name]])
         t0 = time.perf_counter()
-        ds, space, report = _space(cfg)
-        from hydra.utils import instantiate
-
-        from neuralcol.collision.pool import LabelPool
-
-        lab = instantiate(cfg.labeling.labeler)(ds.faces.numpy(), space.rest_vertices.numpy(),
-                                                partition=space.partition.numpy())
+        ctx = diagnose_context(cfg)
+        space, report = ctx.space, ctx.latent_space().report
+        lab = ctx.sample_labeler()
         z = space.sample(args.samples, torch.Generator().manual_seed(0))
         dec = decoder_report(space, z[: space.n_parts])
         with torch.no_grad():
             v = torch.cat([space.decode(c) for c in z.split(256)]).double().numpy()
-        with LabelPool(lab, **OmegaConf.to_container(cfg.labeling.pool)) as pool:
+        with ctx.pool(lab) as pool:
             labels = pool.label(v)
         y = labels.collides
         x = box_scaled(z.numpy(), space.box_lo.numpy(), space.box_hi.numpy())
@@ -196,7 +188,7 @@ def cmd_latent(args) -> dict:
 def cmd_selection(args) -> dict:
     from neuralcol.collision.labeler import split_subsets
     from neuralcol.diagnose.curve import fit_detector, test_metrics
-    from neuralcol.stages.detector import build_detector
+    from neuralcol.nn.detector import build_detector
 
     s = _Setup(_cfg(args.dataset, args.set), need_rows=args.pool)
     det = OmegaConf.to_container(s.cfg.detector, resolve=True)
@@ -243,21 +235,22 @@ def cmd_selection(args) -> dict:
 
 # ------------------------------------------------------------------------------------------------ margin
 def cmd_margin(args) -> dict:
-    from neuralcol.handling.alm import ALMSettings
-    from neuralcol.stages.detector import load_detector
-    from neuralcol.stages.handling import evaluate_handler
+    from neuralcol.handler.alm import ALMSettings
+    from neuralcol.nn.detector import load_detector
+    from neuralcol.rundir import RunDir
+    from neuralcol.stages.handler import evaluate_handler
 
     out = {}
     for run in args.runs:
         run = Path(run)
-        cfg = OmegaConf.load(run / ".hydra" / "config.yaml")
-        overrides = [str(o) for o in OmegaConf.load(run / ".hydra" / "overrides.yaml")
+        cfg = OmegaConf.load(RunDir(run).config)
+        overrides = [str(o) for o in OmegaConf.load(RunDir(run).overrides)
                      if not str(o).startswith(("dataset=", "hydra"))]
         s = _Setup(_cfg(str(cfg.dataset.name), [*overrides, *args.set]))
         pick = np.flatnonzero(s.test.pd > 0)[: args.inputs]
         z_user, pd_user = torch.as_tensor(s.test.z[pick]), s.test.pd[pick]
         base = ALMSettings(**OmegaConf.to_container(s.cfg.handler.alm, resolve=True))
-        net, _ = load_detector(run / "detector.pt")
+        net, _ = load_detector(RunDir(run).detector)
         rows = []
         for margin in args.margins:
             m, _ = evaluate_handler(net, s.oracle, z_user, pd_user, replace(base, margin=margin),
@@ -273,7 +266,7 @@ def cmd_margin(args) -> dict:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(prog="python -m bench.diagnosis_ablations", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m research.diagnosis_ablations", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="cmd", required=True)
 
     def common(q):

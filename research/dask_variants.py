@@ -1,16 +1,16 @@
-"""dask pool settings against the local pool, side by side: ``python -m bench.dask_variants [VARIANT...]``.
+"""dask pool settings against the local pool, side by side: ``python -m research.dask_variants [VARIANT...]``.
 
 Variants: ``default`` (the pool's settings), ``notimeout`` (no chunk timeout, so no start events), ``inflight4``
 (4 chunks in flight per worker thread instead of 2), ``chunk64`` (64 meshes per chunk instead of 32). Each
 variant: a local pool (2 processes) and a dask LocalCluster (2 processes x 1 thread) label the 71 SCAPE meshes
 repeated 8 times, 4 interleaved reps after a warm-up; prints local time / dask time per rep and the median
-(``dask_vs_pool`` of ``bench.run``). Used for issue 16's note (dask_vs_pool 0.77-0.80): none of the variants
-was a measured improvement (the reps spread more than the variants differ).
+(``dask_vs_pool`` of ``python -m bench.run --only dask``). Used for issue 16's note (dask_vs_pool 0.77-0.80):
+none of the variants was a measured improvement (the reps spread more than the variants differ).
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 import time
 
 import numpy as np
@@ -21,12 +21,12 @@ VARIANTS = ("default", "notimeout", "inflight4", "chunk64")
 def ratio(variant: str, reps: int = 4) -> list[float]:
     """Local-pool seconds / dask seconds for ``reps`` interleaved labelings of 568 SCAPE meshes."""
     import neuralcol.collision.pool_dask as pool_dask
-    from bench.run import SCAPE_DIR
+    from bench.context import scape_config
     from neuralcol.collision.labeler import ExactLabeler
     from neuralcol.collision.pool import LabelPool
-    from neuralcol.data.datasets import load_mesh_dataset
+    from neuralcol.pipeline import RunContext
 
-    ds = load_mesh_dataset(SCAPE_DIR)
+    ds = RunContext(scape_config()).dataset  # SCAPE from paths.data_dir (NEURALCOL_DATA)
     verts = ds.vertices.numpy().astype(np.float64)
     batch = np.concatenate([verts] * 8)
     lab = ExactLabeler(ds.faces.numpy(), verts[0])
@@ -54,10 +54,13 @@ def ratio(variant: str, reps: int = 4) -> list[float]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    names = (sys.argv[1:] if argv is None else argv) or list(VARIANTS)
-    for name in names:
-        if name not in VARIANTS:
-            raise SystemExit(f"unknown variant {name!r}; use some of {', '.join(VARIANTS)}")
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("variants", nargs="*", metavar="VARIANT", help=f"some of {', '.join(VARIANTS)} (default: all)")
+    args = ap.parse_args(argv)
+    unknown = [v for v in args.variants if v not in VARIANTS]
+    if unknown:
+        ap.error(f"unknown variant {unknown[0]!r}; use some of {', '.join(VARIANTS)}")
+    for name in args.variants or list(VARIANTS):
         r = ratio(name)
         print(f"{name:10s} dask_vs_pool per rep {np.round(r, 3).tolist()}, median {np.median(r):.3f}", flush=True)
 

@@ -1,12 +1,13 @@
-"""Accuracy against FNR when the detector's decision threshold moves: ``python -m bench.threshold_tradeoff SWEEP TEST``.
+"""Accuracy against FNR when the detector's decision threshold moves:
+``python -m research.threshold_tradeoff SWEEP TEST``.
 
 Issue 15 asks for SCAPE accuracy >= 0.80 *and* FNR <= 0.25. FN outnumber FP among the detector's errors, so a
-lower threshold on the collision probability lowers the FNR; this bench measures what it costs in accuracy, for
+lower threshold on the collision probability lowers the FNR; this study measures what it costs in accuracy, for
 every finished run of a sweep directory (``SWEEP/<n>/detector.pt`` and ``metrics.json``), on one labeled test
 store (an ``.h5`` of uniform samples, e.g. the 10^5-row SCAPE test set of ``experiments.scale_curve``). It writes
 ``SWEEP/threshold_tradeoff.{json,md}`` (``--out`` to put them elsewhere) and prints the table.
 
-    python -m bench.threshold_tradeoff outputs/final/scape .cache/collision/<key>/test_s1000003.h5 \
+    python -m research.threshold_tradeoff outputs/final/scape .cache/collision/<key>/test_s1000003.h5 \
         --out docs/diagnosis/threshold_tradeoff
 """
 
@@ -21,9 +22,9 @@ import numpy as np
 import torch
 
 from neuralcol.errors import UserInputError
-from neuralcol.stages.detector import load_detector
-
-THRESHOLDS = (0.5, 0.45, 0.4, 0.35, 0.3, 0.25)
+from neuralcol.metrics.threshold import THRESHOLDS, tradeoff
+from neuralcol.nn.detector import load_detector
+from neuralcol.rundir import RunDir
 
 
 def probabilities(net: torch.nn.Module, z: np.ndarray, batch: int = 8192) -> np.ndarray:
@@ -31,17 +32,6 @@ def probabilities(net: torch.nn.Module, z: np.ndarray, batch: int = 8192) -> np.
     net.eval()
     with torch.no_grad():
         return torch.cat([net(torch.as_tensor(z[i:i + batch])).prob for i in range(0, len(z), batch)]).numpy()
-
-
-def tradeoff(prob: np.ndarray, collides: np.ndarray, thresholds=THRESHOLDS) -> list[dict]:
-    """Accuracy and FNR of ``prob > t`` against the labels, for each threshold t."""
-    y = np.asarray(collides, bool)
-    out = []
-    for t in thresholds:
-        pred = prob > t
-        out.append({"threshold": float(t), "accuracy": float((pred == y).mean()),
-                    "fnr": float((~pred & y).sum() / max(1, y.sum()))})
-    return out
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -55,19 +45,19 @@ def main(argv: list[str] | None = None) -> None:
         raise UserInputError(f"{args.test}: no such test store; give the .h5 of labeled uniform samples")
     with h5py.File(args.test, "r") as h5:
         z, collides = h5["z"][:], h5["collides"][:].astype(bool)
-    if (args.sweep / "detector.pt").is_file():  # one run directory
+    if RunDir(args.sweep).detector.is_file():  # one run directory
         runs = [args.sweep]
     else:
-        runs = sorted((p for p in args.sweep.iterdir() if (p / "detector.pt").is_file()), key=lambda p: p.name)
+        runs = sorted((p for p in args.sweep.iterdir() if RunDir(p).detector.is_file()), key=lambda p: p.name)
     if not runs:
         raise UserInputError(f"{args.sweep}: no finished run (no <run>/detector.pt); point it at a sweep directory")
     rows = []
     for run in runs:
-        net, _ = load_detector(run / "detector.pt")
+        net, _ = load_detector(RunDir(run).detector)
         if net.latent_dim != z.shape[1]:
             raise UserInputError(f"{run}: detector takes {net.latent_dim}-d codes, {args.test} has {z.shape[1]}-d "
                                  "codes; give the test store of this run's latent space")
-        meta = json.loads((run / "metrics.json").read_text())["detector"]
+        meta = json.loads(RunDir(run).metrics.read_text())["detector"]
         rows.append({"run": run.name, "method": meta["method"],
                      "points": tradeoff(probabilities(net, z), collides)})
     out = args.out or args.sweep

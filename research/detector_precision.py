@@ -1,6 +1,6 @@
 """Test accuracy of FastDetector (compiled float32 and bfloat16) against the eager float32 detector, per run.
 
-    python -m bench.detector_precision RUN_DIR [RUN_DIR ...] [--out FILE] [--threads 2]
+    python -m research.detector_precision RUN_DIR [RUN_DIR ...] [--out FILE] [--threads 2]
 
 For each finished run: its cached test set (the rows ``test_predictions.npz`` was computed on; the eager logits
 are checked against that file, so the rows are the right ones), accuracy and FNR of each form, their changes
@@ -18,19 +18,14 @@ import h5py
 import numpy as np
 import torch
 
-from bench.run import FAST_KEYS
+from bench.neural import FAST_KEYS
+from neuralcol.rundir import RunDir
 
 
 def test_rows(run) -> tuple[np.ndarray, np.ndarray]:
     """(z (N, D) float32, collides (N,) bool) of the run's cached test set."""
-    from hydra.utils import instantiate
-
-    from neuralcol.stages.detector import samples_cache_dir
-
-    cfg, space = run.cfg, run.space
-    labeler = instantiate(cfg.labeling.labeler)(space.faces.numpy(), space.rest_vertices.numpy(),
-                                                partition=space.partition.numpy())
-    folder = samples_cache_dir(cfg.paths.cache_dir, str(run.metrics["autoencoder"]["cache_key"]), labeler)
+    cfg = run.cfg
+    folder = run.context().samples_dir(run.labeler)
     path = folder / f"test_s{int(cfg.detector.test_seed)}.h5"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: the run's test set is not in the cache; run the run's command again")
@@ -47,7 +42,8 @@ def evaluate(run_dir: Path) -> dict:
     run = load_run(run_dir)
     net = run.detector.eval()
     z, collides = test_rows(run)
-    stored = np.load(run_dir / "test_predictions.npz")
+    run.close()  # its label pool (opened for the labeler): the detector is all that is needed below
+    stored = np.load(RunDir(run_dir).test_predictions)
     zt = torch.as_tensor(z)
     row: dict = {"run": str(run_dir), "n": len(z)}
     preds = {}

@@ -1,4 +1,4 @@
-"""Why python-fcl's contact depth is not used for PD: ``python -m bench.fcl_depth_continuity``.
+"""Why python-fcl's contact depth is not used for PD: ``python -m research.fcl_depth_continuity``.
 
 A triangle slides sideways into another (entering through its edge). FCL's contact depth for the pair
 jumps from 'no contact' to about the piercing triangle's height; the SAT translational depth used by
@@ -7,10 +7,12 @@ neuralcol grows continuously from 0. Prints one row per offset.
 
 from __future__ import annotations
 
+import argparse
+
 import fcl
 import numpy as np
 
-from neuralcol.collision.kernels import triangle_pair_depth
+from neuralcol.collision.kernels.depth import triangle_pair_depth
 
 
 def _bvh(v: np.ndarray, f: np.ndarray) -> fcl.BVHModel:
@@ -21,7 +23,8 @@ def _bvh(v: np.ndarray, f: np.ndarray) -> fcl.BVHModel:
     return m
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    argparse.ArgumentParser(description=__doc__).parse_args(argv)
     tri = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     face = np.array([[0, 1, 2]])
     print(f"{'offset':>8} {'fcl_contact':>12} {'fcl_depth':>10} {'sat_depth':>10}")

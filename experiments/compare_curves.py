@@ -1,6 +1,6 @@
 """Paired differences between two detector variants of learning curves (`experiments.diagnose` outputs).
 
-    python -m bench.compare_curves BASE_DIR:VARIANT OTHER_DIR:VARIANT [--json OUT]
+    python -m experiments.compare_curves BASE_DIR:VARIANT OTHER_DIR:VARIANT [--json OUT]
 
 Each ``DIR`` holds a ``diagnosis.json`` written by ``python -m experiments.diagnose diagnose.parts=[curve]``
 (``diagnose.out=DIR``); ``VARIANT`` names one of its ``diagnose.curve.variants``. The records of the two

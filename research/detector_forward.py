@@ -2,8 +2,8 @@
 code before stop 23) against CP with its first layer split (``CollisionDetector._cp``: the S_0 half once per
 sample), in one block and in row blocks of ``CollisionDetector.inference_block`` (the default since stop 23).
 
-    python -m bench.detector_forward RUN_DIR [--batch 4096] [--repeats 30] [--threads 2] [--out FILE]
-    python -m bench.detector_forward RUN_DIR --fast-blocks 512 1024 2048 [--batch 4096]   # FastDetector blocks
+    python -m research.detector_forward RUN_DIR [--batch 4096] [--repeats 30] [--threads 2] [--out FILE]
+    python -m research.detector_forward RUN_DIR --fast-blocks 512 1024 2048 [--batch 4096]   # FastDetector blocks
 
 All forms run on the same detector (``RUN_DIR/detector.pt``) and the same codes, alternating repeat by repeat so
 that a noisy machine slows both alike; prints (and with ``--out`` writes as JSON) the median microseconds per
@@ -20,16 +20,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from neuralcol.nn.detector import CollisionDetector
-from neuralcol.stages.detector import load_detector
-
-
-def concat_forward(net: CollisionDetector, z_all: torch.Tensor) -> torch.Tensor:
-    """The collision probability with CP applied to the concatenation, K times per sample (before stop 23)."""
-    parts, cse_in = net.inputs(z_all)
-    s0 = net.cse(cse_in)
-    s = net.cp(torch.cat([s0[:, None, :].expand(-1, net.n_components, -1), parts], dim=-1))[..., 0]
-    return torch.sigmoid(net.mlp_c(s)[:, 0])
+from bench.neural import concat_forward  # the forward before stop 23, also timed by `python -m bench.run`
+from neuralcol.nn.detector import CollisionDetector, load_detector
+from neuralcol.rundir import RunDir
 
 
 def _split_one_block(net: CollisionDetector, z: torch.Tensor) -> torch.Tensor:
@@ -110,7 +103,7 @@ def main(argv: list[str] | None = None) -> None:
                     help="instead: time FastDetector (float32, bfloat16) at these block sizes against eager")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
-    net, _ = load_detector(args.run / "detector.pt")
+    net, _ = load_detector(RunDir(args.run).detector)
     net.eval()
     if args.fast_blocks:
         rows = [compare_fast_blocks(net, b, args.repeats, args.fast_blocks) for b in args.batch]

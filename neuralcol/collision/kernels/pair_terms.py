@@ -1,0 +1,202 @@
+"""The terms of one non-adjacent triangle pair: the rest mesh's near table, the pair's depth and clearance term,
+their effect on a part's clearance and floor, and the crossing records of a counted pair."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from neuralcol.collision.kernels.broadphase import shared_vertex_count
+from neuralcol.collision.kernels.depth import (
+    opposite_edges_cross,
+    plane_separated,
+    segment_crosses_triangle,
+    signed_volume,
+    triangle_pair_depth,
+)
+from neuralcol.collision.kernels.distance import box_gap, corner_angle, pair_distance, triangle_distance
+from neuralcol.collision.kernels.vec import BOUND_GROW, BOUND_SHRINK, corners, point
+
+
+@njit(cache=True)
+def near_table(rest, faces, pairs, cap, scale):
+    """Pairs that are within ``cap`` in the rest mesh, with their rest measure.
+
+    Args:
+        rest: (V, 3) rest vertices.
+        faces: (F, 3).
+        pairs: (P, 2) non-adjacent candidate pairs of the rest mesh (boxes grown by cap / 2).
+        cap: clearance cap.
+        scale: mean edge length.
+
+    Returns:
+        keys (N,) int64 sorted (``a * F + b``), rest (N,) float64: the corner angle for pairs sharing a
+        vertex, the SAT separation for the others (<= 0 when the pair touches at rest).
+    """
+    n_faces = faces.shape[0]
+    keys = np.empty(pairs.shape[0], dtype=np.int64)
+    vals = np.empty(pairs.shape[0])
+    m = 0
+    for k in range(pairs.shape[0]):
+        a = pairs[k, 0]
+        b = pairs[k, 1]
+        shared = shared_vertex_count(faces, a, b)
+        if shared == 1:
+            val = corner_angle(rest, faces, a, b)
+        else:
+            if pair_distance(rest, faces, a, b) >= cap:
+                continue
+            p0, p1, p2 = corners(rest, faces, a)
+            q0, q1, q2 = corners(rest, faces, b)
+            val = -triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
+        keys[m] = a * n_faces + b
+        vals[m] = val
+        m += 1
+    order = np.argsort(keys[:m])
+    return keys[:m][order], vals[:m][order]
+
+
+@njit(cache=True, inline="always")
+def near_index(near_ptr, near_b, a, b):
+    """Row of pair (a, b), a < b, in the near table (CSR by a, partners b sorted), or -1 if it is not near."""
+    lo = near_ptr[a]
+    end = near_ptr[a + 1]
+    hi = end
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if near_b[mid] < b:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo < end and near_b[lo] == b:
+        return lo
+    return -1
+
+
+@njit(cache=True, inline="always")
+def part_min(clear, part, faces, a, b, cap):
+    """Largest current clearance among the parts of the vertices of triangles a and b, capped."""
+    m = 0.0
+    for t in (a, b):
+        for i in range(3):
+            m = max(m, clear[part[faces[t, i]]])
+    return min(m, cap)
+
+
+@njit(cache=True)
+def pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap, clear, part):
+    """Depth and clearance term of one non-adjacent candidate pair: (evaluated, depth, c).
+
+    ``idx`` is the pair's near-table row (-1: far). ``evaluated`` is False for a far pair that provably cannot
+    lower any clearance of its parts below the current one (then depth and c are not computed).
+    """
+    p0, p1, p2 = corners(verts, faces, a)
+    q0, q1, q2 = corners(verts, faces, b)
+    near = idx >= 0
+    if shared == 1:
+        if opposite_edges_cross(verts, faces, a, b):
+            depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
+        else:
+            depth = -1.0  # no overlap beyond the shared vertex
+    elif near:
+        depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
+    else:
+        lb = box_gap(p0, p1, p2, q0, q1, q2)
+        if lb > 0.0 and lb * BOUND_SHRINK >= part_min(clear, part, faces, a, b, cap):
+            return False, 0.0, 0.0  # apart by more than any clearance this pair could still lower
+        if plane_separated(p0, p1, p2, q0, q1, q2, cap * BOUND_GROW):
+            return False, 0.0, 0.0  # apart by more than cap: no overlap, clearance term >= cap
+        if plane_separated(p0, p1, p2, q0, q1, q2, tau):
+            depth = -1.0
+        else:
+            depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
+    if depth > tau:
+        c = 0.0
+    elif near:
+        r = near_rest[idx]
+        if r <= 0.0:
+            c = cap  # the pair touches in the rest mesh: no reference to measure against
+        elif shared == 1:
+            c = cap * corner_angle(verts, faces, a, b) / r
+        else:
+            c = cap * max(-depth, 0.0) / r
+    else:
+        c = 0.0 if depth > 0.0 else triangle_distance(p0, p1, p2, q0, q1, q2)
+    return True, depth, c
+
+
+@njit(cache=True, inline="always")
+def lower_clearance(clear, part, faces, a, b, c):
+    for t in (a, b):
+        for i in range(3):
+            pi = part[faces[t, i]]
+            if c < clear[pi]:
+                clear[pi] = c
+
+
+@njit(cache=True)
+def _edge_id(adj_ptr, adj_idx, adj_eid, u, w):
+    for k in range(adj_ptr[u], adj_ptr[u + 1]):
+        if adj_idx[k] == w:
+            return adj_eid[k]
+    return -1
+
+
+@njit(cache=True)
+def add_crossings(verts, faces, a, b, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec):
+    """Append the crossing records of a counted pair (edges of a through b and of b through a).
+
+    A record is key = edge id + lambda / 2 and ints = (edge, behind vertex, other end, pierced triangle,
+    counted pair). Returns the (possibly grown) arrays and the new count.
+    """
+    for side in range(2):
+        s = a if side == 0 else b
+        t = b if side == 0 else a
+        ta, tb, tc = corners(verts, faces, t)
+        for i in range(3):
+            u = faces[s, i]
+            w = faces[s, (i + 1) % 3]
+            if u == faces[t, 0] or u == faces[t, 1] or u == faces[t, 2]:
+                continue
+            if w == faces[t, 0] or w == faces[t, 1] or w == faces[t, 2]:
+                continue
+            pu = point(verts, u)
+            pw = point(verts, w)
+            sd = segment_crosses_triangle(pu, pw, ta, tb, tc)
+            if sd == 0.0:
+                continue
+            eid = _edge_id(adj_ptr, adj_idx, adj_eid, u, w)
+            if eid < 0:
+                continue
+            if n_rec == rec_key.shape[0]:
+                g_key = np.empty(2 * n_rec)
+                g_int = np.empty((2 * n_rec, 5), dtype=np.int64)
+                g_key[:n_rec] = rec_key[:n_rec]
+                g_int[:n_rec] = rec_int[:n_rec]
+                rec_key = g_key
+                rec_int = g_int
+            lo_v = min(u, w)  # crossing parameter measured from the lower vertex id, so both
+            hi_v = max(u, w)  # triangles of the edge give the same value
+            dl = signed_volume(ta, tb, tc, point(verts, lo_v))
+            dh = signed_volume(ta, tb, tc, point(verts, hi_v))
+            lam = dl / (dl - dh)
+            behind = u if sd * orient < 0.0 else w
+            rec_key[n_rec] = eid + 0.5 * min(max(lam, 0.0), 1.0)
+            rec_int[n_rec, 0] = eid
+            rec_int[n_rec, 1] = behind
+            rec_int[n_rec, 2] = w if behind == u else u
+            rec_int[n_rec, 3] = t
+            rec_int[n_rec, 4] = 1
+            n_rec += 1
+    return rec_key, rec_int, n_rec
+
+
+@njit(cache=True, inline="always")
+def count_pair(verts, faces, a, b, depth, tau, part, floor, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int,
+               n_rec):
+    """A counted pair (depth > tau): raise the floor of its parts and append its crossing records."""
+    for t in (a, b):
+        for i in range(3):
+            pi = part[faces[t, i]]
+            floor[pi] = max(floor[pi], depth - tau)
+    return add_crossings(verts, faces, a, b, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)

@@ -1,0 +1,251 @@
+"""The pruned label passes of :class:`~neuralcol.collision.labeler.ExactLabeler`: near pairs from the rest mesh's
+table and far pairs from one grid, skipping the pairs that provably cannot change a label (``docs/labels.md``,
+"Scaling")."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from neuralcol.collision.kernels.broadphase import boxes_overlap, grid_cells, shared_vertex_count
+from neuralcol.collision.kernels.depth import axes_gap
+from neuralcol.collision.kernels.distance import cone_gap
+from neuralcol.collision.kernels.pair_terms import count_pair, lower_clearance, near_index, pair_terms, part_min
+from neuralcol.collision.kernels.vec import BOUND_SHRINK, corners
+
+
+@njit(cache=True)
+def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, lo_cap, hi_cap, axes, inv, ax_lo,
+              ax_hi, cone_axis, cone_rho, scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient,
+              rec_key, rec_int, n_rec, scratch_i, scratch_f):
+    """Every near pair (the rest mesh's table) that the reference considers (boxes within cap): counted pairs,
+    their crossings, and the clearance terms that can lower a part's clearance. Lowers ``clear`` and raises
+    ``floor`` in place.
+
+    A pair whose boxes overlap may be counted (d > tau); a pair whose boxes are disjoint cannot (as in the
+    reference, whose counted pairs come from overlapping boxes). The per-triangle SAT axes give
+    ``g <= -depth`` exactly (:func:`axes_gap`), so a pair not sharing a vertex with ``g > tau`` is not
+    counted and its term ``c = cap * max(-depth, 0) / r >= cap * g / r``: it is evaluated only if that bound
+    is below the largest current clearance of its parts (then it might lower one). To make that threshold
+    low early, the pair with the smallest bound of each part is evaluated first. Pairs sharing a vertex and
+    pairs touching at rest (no bound) are always evaluated, as in the reference. Skipping a term that is
+    >= the current clearance leaves every minimum, maximum and count unchanged, so the labels equal the
+    reference's bit for bit.
+
+    ``scratch_i`` (2, N) int64 and ``scratch_f`` (N,) float64 (N = number of near pairs) are work space, reused
+    between meshes (allocating them per mesh costs more than the pass on finely subdivided meshes).
+
+    Returns:
+        n_pairs (counted), rec_key, rec_int, n_rec (crossing records, possibly grown).
+    """
+    n_faces = faces.shape[0]
+    n_parts = clear.shape[0]
+    todo_a = scratch_i[0]  # preallocated (2, N) int64 and (N,) float64 for N = len(near_b)
+    todo_i = scratch_i[1]
+    todo_bound = scratch_f
+    n_todo = 0
+    best_bound = np.full(n_parts, np.inf)
+    best_k = np.full(n_parts, -1, dtype=np.int64)
+    n_pairs = 0
+    for a in range(n_faces):
+        p0, p1, p2 = corners(verts, faces, a)
+        t_all = min(clear.max(), cap)  # no term >= this can lower any clearance (they only fall)
+        for idx in range(near_ptr[a], near_ptr[a + 1]):
+            b = near_b[idx]
+            if not boxes_overlap(lo_cap, hi_cap, a, b):
+                continue  # not a candidate of the reference
+            overlap = boxes_overlap(lo0, hi0, a, b)
+            r = near_rest[idx]
+            bound = -np.inf
+            if near_shared[idx]:
+                # c = cap * wedge_gap / r; a positive cone bound also rules out an overlap beyond the vertex
+                g = cone_gap(faces, a, b, cone_axis, cone_rho)
+                if g > 0.0:
+                    bound = cap if r <= 0.0 else cap * (g * BOUND_SHRINK) / r
+            else:
+                q0, q1, q2 = corners(verts, faces, b)
+                g = axes_gap(axes, inv, ax_lo, ax_hi, a, q0, q1, q2)
+                if (not overlap or g > tau) and (r <= 0.0 or cap * (g * BOUND_SHRINK) / r >= t_all):
+                    continue  # not counted, and its term cannot lower any clearance
+                g = max(g, axes_gap(axes, inv, ax_lo, ax_hi, b, p0, p1, p2))
+                if not overlap or g > tau:  # not counted; c >= bound (c = cap when the pair touches at rest)
+                    bound = cap if r <= 0.0 else cap * (g * BOUND_SHRINK) / r
+            if overlap and bound == -np.inf:  # may be counted: evaluate now
+                shared = 1 if near_shared[idx] else 0
+                evaluated, depth, c = pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap,
+                                                 clear, part)
+                if evaluated:
+                    lower_clearance(clear, part, faces, a, b, c)
+                    if depth > tau:
+                        n_pairs += 1
+                        rec_key, rec_int, n_rec = count_pair(verts, faces, a, b, depth, tau, part, floor, adj_ptr,
+                                                             adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)
+                continue
+            if bound >= t_all:
+                continue  # not counted (bound > -inf), and its term cannot lower any clearance
+            todo_a[n_todo] = a
+            todo_i[n_todo] = idx
+            todo_bound[n_todo] = bound
+            for t in (a, b):
+                for i in range(3):
+                    pi = part[faces[t, i]]
+                    if bound < best_bound[pi]:
+                        best_bound[pi] = bound
+                        best_k[pi] = n_todo
+            n_todo += 1
+    # the most promising pair of each part first, then the rest against the lowered thresholds
+    for step in range(n_parts + n_todo):
+        k = best_k[step] if step < n_parts else step - n_parts
+        if k < 0:
+            continue
+        if step >= n_parts and todo_bound[k] == np.inf:
+            continue  # done in the first round
+        a = todo_a[k]
+        idx = todo_i[k]
+        b = near_b[idx]
+        thr = part_min(clear, part, faces, a, b, cap)
+        if thr <= 0.0 or todo_bound[k] >= thr:
+            continue
+        todo_bound[k] = np.inf  # mark done
+        shared = 1 if near_shared[idx] else 0
+        evaluated, depth, c = pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap, clear, part)
+        if evaluated:
+            lower_clearance(clear, part, faces, a, b, c)
+    return n_pairs, rec_key, rec_int, n_rec
+
+
+@njit(cache=True, inline="always")
+def _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi):
+    """Largest gap between triangles a and b along their own SAT axes: ``<= -depth`` and ``<= distance``."""
+    p0, p1, p2 = corners(verts, faces, a)
+    q0, q1, q2 = corners(verts, faces, b)
+    return max(axes_gap(axes, inv, ax_lo, ax_hi, a, q0, q1, q2), axes_gap(axes, inv, ax_lo, ax_hi, b, p0, p1, p2))
+
+
+@njit(cache=True)
+def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, skip2, near_ptr, near_b, near_rest,
+             axes, inv, ax_lo, ax_hi, scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key,
+             rec_int, n_rec):
+    """Every far pair (not adjacent, sharing no vertex, not in the near table) that matters, found with one
+    uniform grid over the boxes ``lo``/``hi`` (grown by at least half the largest clearance still to beat):
+    far pairs with overlapping boxes are evaluated in full (they may be counted), far pairs with disjoint
+    boxes within cap lower the clearance (their term is the distance; only when a triangle is ``active``,
+    i.e. some part of its vertices still has a clearance > 0, and the rest centroids ``pts`` are at least
+    ``sqrt(skip2)`` apart: closer pairs are near). Each pair is visited once (the cell of the lower corner
+    of the two grown boxes' intersection) and evaluated as it is found.
+
+    Returns:
+        n_pairs (counted), rec_key, rec_int, n_rec.
+    """
+    n = lo.shape[0]
+    keys, ids, ilo, dims = grid_cells(lo, hi, cell)
+    total = keys.shape[0]
+    # entries in cell order, each cell's entries sorted by their box's lower x (insertion sort: cells are
+    # small), copied contiguously; a sweep along x stops at the first entry that starts beyond the box's end
+    s_lo = np.empty((total, 3))
+    s_hi = np.empty((total, 3))
+    for e in range(total):
+        f = ids[e]
+        for d in range(3):
+            s_lo[e, d] = lo[f, d]
+            s_hi[e, d] = hi[f, d]
+    start = 0
+    while start < total:
+        end = start + 1
+        while end < total and keys[end] == keys[start]:
+            end += 1
+        for e in range(start + 1, end):
+            x = s_lo[e, 0]
+            f = ids[e]
+            y0 = s_lo[e, 1]
+            z0 = s_lo[e, 2]
+            x1 = s_hi[e, 0]
+            y1 = s_hi[e, 1]
+            z1 = s_hi[e, 2]
+            m = e - 1
+            while m >= start and s_lo[m, 0] > x:
+                ids[m + 1] = ids[m]
+                for d in range(3):
+                    s_lo[m + 1, d] = s_lo[m, d]
+                    s_hi[m + 1, d] = s_hi[m, d]
+                m -= 1
+            ids[m + 1] = f
+            s_lo[m + 1, 0] = x
+            s_lo[m + 1, 1] = y0
+            s_lo[m + 1, 2] = z0
+            s_hi[m + 1, 0] = x1
+            s_hi[m + 1, 1] = y1
+            s_hi[m + 1, 2] = z1
+        start = end
+    # per triangle, the largest clearance (capped) among its vertices' parts when the pass starts
+    tri_thr = np.zeros(n)
+    for f in range(n):
+        if active[f]:
+            for i in range(3):
+                tri_thr[f] = max(tri_thr[f], min(clear[part[faces[f, i]]], cap))
+    n_pairs = 0
+    start = 0
+    while start < total:
+        end = start + 1
+        while end < total and keys[end] == keys[start]:
+            end += 1
+        key = keys[start]
+        cz = key % dims[2]
+        cy = (key // dims[2]) % dims[1]
+        cx = key // (dims[2] * dims[1])
+        for i in range(start, end):
+            a0 = ids[i]
+            ax1 = s_hi[i, 0]
+            for j in range(i + 1, end):
+                if s_lo[j, 0] > ax1:
+                    break  # this and every later entry of the cell start beyond a0's box in x
+                if (s_lo[j, 1] > s_hi[i, 1] or s_lo[i, 1] > s_hi[j, 1] or s_lo[j, 2] > s_hi[i, 2]
+                        or s_lo[i, 2] > s_hi[j, 2]):
+                    continue  # (x overlaps: s_lo[i, 0] <= s_lo[j, 0] <= s_hi[i, 0])
+                b0 = ids[j]
+                if (max(ilo[a0, 0], ilo[b0, 0]) != cx or max(ilo[a0, 1], ilo[b0, 1]) != cy
+                        or max(ilo[a0, 2], ilo[b0, 2]) != cz):
+                    continue
+                a = min(a0, b0)
+                b = max(a0, b0)
+                if boxes_overlap(lo0, hi0, a, b):
+                    if near_index(near_ptr, near_b, a, b) >= 0 or shared_vertex_count(faces, a, b) > 0:
+                        continue  # near or adjacent: not a far pair
+                    g = _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi)
+                    if g > tau and g * BOUND_SHRINK >= part_min(clear, part, faces, a, b, cap):
+                        continue  # not counted (depth <= -g), and its distance >= g cannot lower a clearance
+                    evaluated, depth, c = pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear,
+                                                     part)
+                    if evaluated:
+                        lower_clearance(clear, part, faces, a, b, c)
+                        if depth > tau:
+                            n_pairs += 1
+                            rec_key, rec_int, n_rec = count_pair(verts, faces, a, b, depth, tau, part, floor,
+                                                                 adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int,
+                                                                 n_rec)
+                    continue
+                t = max(tri_thr[a], tri_thr[b])  # >= the pair's current threshold (clearances only fall)
+                if t <= 0.0 or not boxes_overlap(lo_cap, hi_cap, a, b):
+                    continue
+                g2 = 0.0  # Euclidean gap of the boxes, as pair_terms computes it: a lower bound of the distance
+                for d in range(3):
+                    gap = max(lo0[b, d] - hi0[a, d], lo0[a, d] - hi0[b, d], 0.0)
+                    g2 += gap * gap
+                lb = np.sqrt(g2)
+                if lb > 0.0 and lb * BOUND_SHRINK >= t:
+                    continue
+                dd = 0.0
+                for d in range(3):
+                    dd += (pts[a, d] - pts[b, d]) ** 2
+                if dd < skip2:
+                    continue  # closer than cap at rest: near
+                if near_index(near_ptr, near_b, a, b) >= 0 or shared_vertex_count(faces, a, b) > 0:
+                    continue
+                thr = part_min(clear, part, faces, a, b, cap)
+                if thr <= 0.0 or _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi) * BOUND_SHRINK >= thr:
+                    continue  # its distance >= the gap cannot lower a clearance
+                evaluated, depth, c = pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear, part)
+                if evaluated:
+                    lower_clearance(clear, part, faces, a, b, c)
+        start = end
+    return n_pairs, rec_key, rec_int, n_rec

@@ -1,0 +1,136 @@
+"""What both executors of :class:`~neuralcol.collision.pool.LabelPool` share (the local worker processes in
+:mod:`neuralcol.collision.pool` and the dask cluster in :mod:`neuralcol.collision.pool_dask`): the per-chunk
+labelling function, the warm-up of a worker's labeler, the bookkeeping of one call (:class:`Batch`) and the
+one-line failure reasons."""
+
+from __future__ import annotations
+
+import collections
+from typing import NamedTuple
+
+import numpy as np
+
+from neuralcol.collision.labeler import ExactLabeler, Label
+from neuralcol.utils.faults import fault_point
+
+STARTUP_TIMEOUT = 900.0  # seconds the workers may take to start (import, unpickle the labeler, load/compile kernels)
+MAX_REASON = 300  # characters of an exception message kept in a failure reason
+
+
+def failure_reason(exc: BaseException) -> str:
+    """One line: ``"ExceptionType: message"`` (message shortened)."""
+    msg = " ".join(str(exc).split())
+    if len(msg) > MAX_REASON:
+        msg = msg[:MAX_REASON - 3] + "..."
+    return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+
+
+def warm_up(labeler) -> None:
+    """Label the labeler's rest mesh once, so its compiled kernels are loaded (or compiled) before a worker takes
+    a chunk, outside any chunk's timeout. Only a warm-up: an exception is ignored (a real problem shows on the
+    chunks)."""
+    rest = getattr(labeler, "rest", None)
+    if rest is not None:
+        try:
+            labeler.label(rest)
+        except Exception:
+            pass
+
+
+def label_chunk(labeler: ExactLabeler, chunk: np.ndarray) -> list[Label | str]:
+    """Labels of a chunk (C, V, 3) float64 with the given labeler (self-contained task for any executor).
+
+    Args:
+        labeler: the exact labeler.
+        chunk: (C, V, 3) float64 vertices.
+
+    Returns:
+        C entries in the order of ``chunk``: the mesh's Label, or a failure reason (str) if the labeler raised
+        an exception or returned a non-finite PD.
+    """
+    out: list[Label | str] = []
+    if getattr(labeler, "batched", False) and len(chunk) > 1:
+        # a batched backend (e.g. the GPU labeler) labels the whole chunk at once; if that raises, every mesh is
+        # labelled alone below, so one bad mesh still fails alone
+        try:
+            labels = labeler.label_batch(chunk)
+        except Exception:
+            labels = None
+        if labels is not None:
+            for i in range(len(chunk)):
+                lb = Label(bool(labels.collides[i]), int(labels.n_pairs[i]), float(labels.pd[i]), labels.pd_sub[i])
+                ok = np.isfinite(lb.pd) and np.isfinite(lb.pd_sub).all()
+                out.append(lb if ok else f"non-finite label (pd={lb.pd})")
+            return out
+    for v in chunk:
+        try:
+            lb = labeler.label(v)
+        except Exception as exc:  # one bad mesh must not lose the chunk
+            out.append(failure_reason(exc))
+            continue
+        if not (np.isfinite(lb.pd) and np.isfinite(lb.pd_sub).all()):
+            out.append(f"non-finite label (pd={lb.pd})")
+        else:
+            out.append(lb)
+    return out
+
+
+def submit_ready(normal, suspects, in_flight, limit: int, submit) -> None:
+    """Submit what may run now: a suspect alone, once nothing else is in flight; else tasks of ``normal`` until
+    ``limit`` are in flight. ``submit(queue)`` submits the first task of a deque of :class:`Task` and takes it off."""
+    if suspects:
+        if not in_flight:
+            submit(suspects)
+    else:
+        while normal and len(in_flight) < limit:
+            submit(normal)
+
+
+class Task(NamedTuple):
+    """Meshes (global indices) labelled together; ``isolated``: a suspect running alone (the module docstring of
+    :mod:`neuralcol.collision.pool`)."""
+
+    idx: np.ndarray
+    isolated: bool
+
+
+class Batch:
+    """Bookkeeping of one call: labels and failures by index, exception retries, the progress bar."""
+
+    def __init__(self, n: int, bar):
+        self.results: list[Label | None] = [None] * n
+        self.failures: dict[int, str] = {}
+        self.raised: collections.Counter = collections.Counter()  # exceptions per mesh
+        self.bar = bar
+
+    def fail(self, i: int, reason: str) -> None:
+        self.failures[int(i)] = reason
+        self.bar.update(1)
+
+    def give_up(self, queues, reason: str) -> None:
+        """Report every mesh of the tasks still in ``queues`` (deques of Task) as failed and empty them."""
+        for q in queues:
+            for task in q:
+                for i in task.idx:
+                    self.fail(int(i), reason)
+            q.clear()
+
+    def settle(self, task: Task, out: list[Label | str]) -> list[Task]:
+        """Record a task's result; returns the retries (meshes that raised for the first time, each alone)."""
+        retry = []
+        for i, r in zip(task.idx, out):
+            if isinstance(r, str):
+                retry += self.charge(int(i), r, task.isolated)
+            else:
+                self.results[int(i)] = r
+                self.bar.update(1)
+        fault_point("label_chunk")  # crash tests (neuralcol.utils.faults): a chunk is labelled
+        return retry
+
+    def charge(self, i: int, reason: str, isolated: bool) -> list[Task]:
+        """A mesh raised: retried once (alone), then reported."""
+        self.raised[i] += 1
+        if self.raised[i] >= 2:
+            self.fail(i, reason)
+            return []
+        return [Task(np.array([i]), isolated)]
