@@ -18,7 +18,7 @@ import yaml
 from omegaconf import OmegaConf
 
 from neuralcol.api import load_run
-from neuralcol.handler.contact_repair import repair_settings
+from neuralcol.handler.contact_repair import repair_from_config
 from neuralcol.handler.resolve import alm_settings
 from neuralcol.rundir import RunDir
 from neuralcol.stages.realistic import evaluate_realistic, realistic_set
@@ -43,12 +43,9 @@ def mesh_detector_config(cfg, overrides: list[str]):
 
 
 def repair_config(cfg, overrides: list[str]):
-    """The run's ``handler.repair`` settings (or the default group's for older runs) with overrides, as
+    """The run's ``handler.repair`` settings (off for runs older than it) with overrides, as
     :class:`~neuralcol.handler.contact_repair.RepairSettings` (None when disabled)."""
-    base = OmegaConf.select(cfg, "handler.repair")
-    if base is None:
-        base = OmegaConf.create(yaml.safe_load((ROOT / "conf" / "handler" / "default.yaml").read_text())["repair"])
-    return repair_settings(OmegaConf.to_container(OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides)))))
+    return repair_from_config(cfg, overrides=overrides)
 
 
 def run_realistic_set(run, rcfg):

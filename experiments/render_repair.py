@@ -16,7 +16,7 @@ import numpy as np
 
 from experiments.evaluate_realistic import realistic_config, run_realistic_set
 from neuralcol.api import load_run
-from neuralcol.handler.contact_repair import outward_sign, repair_contacts, repair_settings
+from neuralcol.handler.contact_repair import outward_sign, repair_contacts
 from neuralcol.metrics.plots import depth_colors, render_mesh_png
 from neuralcol.stages.realistic import clear_mask
 
@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> None:
         _, _, _, _, meshes, pd = run_realistic_set(run, realistic_config(run.cfg, []))
         lab = run.labeler
         colliding = np.flatnonzero(clear_mask(pd, lab.eps, 10) & (np.nan_to_num(pd) > 0))
-        s = run._repair_settings(True) or repair_settings({})
+        s = run.repair_settings(True)
         diag = run.diagonal
         sign = outward_sign(run.faces, run.space.rest_vertices.numpy())
         shown = 0

@@ -22,10 +22,10 @@ import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from neuralcol.geometry.mesh_io import write_meshes
-from neuralcol.handler.contact_repair import repair_settings
+from neuralcol.handler.contact_repair import repair_from_config
 from neuralcol.handler.resolve import alm_settings
 from neuralcol.metrics.plots import partition_colors, render_mesh_png
 from neuralcol.metrics.tensorboard import stage_logger
@@ -128,8 +128,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
             realistic_metrics, real_arrays = evaluate_realistic(
                 space, net, meshes, pd_real, pool, float(sample_labeler.eps), cfg.realistic, settings,
                 list(cfg.handler.verify_margins), int(cfg.handler.batch_size), mesh_net=mesh_net,
-                repair=repair_settings(OmegaConf.to_container(cfg.handler.repair, resolve=True)
-                                       if OmegaConf.select(cfg, "handler.repair") is not None else None))
+                repair=repair_from_config(cfg))
             realistic_metrics.update({"from_cache": real_cached, "stage_seconds": time.perf_counter() - t_r})
             np.savez_compressed(rd.realistic_predictions, **real_arrays)
             log_realistic(logger, realistic_metrics, det["rounds"][-1]["dataset_size"])

@@ -310,16 +310,12 @@ class TrainedRun:
             self._fast[form] = FastDetector.from_form(self.detector, form)
         return self._fast[form]
 
-    def _repair_settings(self, repair: bool | None):
+    def repair_settings(self, repair: bool | None = None):
         """The run's ``handler.repair`` (off for runs older than it) with ``repair`` forcing it on or off."""
-        from neuralcol.handler.contact_repair import repair_settings
+        from neuralcol.handler.contact_repair import repair_from_config
 
-        node = OmegaConf.select(self.cfg, "handler.repair")
-        c = dict(OmegaConf.to_container(node, resolve=True)) if node is not None else {"enabled": False}
-        if repair is not None:
-            c["enabled"] = bool(repair)
         try:
-            return repair_settings(c)
+            return repair_from_config(self.cfg, enabled=repair)
         except ValueError as e:
             raise UserInputError(f"{self.run_dir}/.hydra/config.yaml: {e}") from e
 
@@ -461,7 +457,7 @@ class TrainedRun:
         used_margins = np.array([settings.margin, *margins])
         diag = self.diagonal
         if v_user is not None:
-            rep = self._repair_settings(repair) if verify else None
+            rep = self.repair_settings(repair) if verify else None
             if rep is not None:
                 self.label_pool()  # the repair asks the run's labeler in this process
             res = resolve_meshes(self.detector, self.space, v_user, self._pd, settings, margins, batch,

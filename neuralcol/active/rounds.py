@@ -55,7 +55,7 @@ class RoundCallback(L.Callback):
 
     Args:
         datamodule: D_c (already holding the bootstrap rows, round 0).
-        acquire: the method's acquisition (uniform or projected).
+        acquire: the method's acquisition (uniform or projected); None: the bootstrap round only (``max_rounds = 0``).
         evaluate: module -> dict of test metrics (``accuracy`` among them).
         bootstrap: schedule of round 0.
         update: schedule of every later round.
@@ -72,13 +72,15 @@ class RoundCallback(L.Callback):
         on_round: called with the list of round records after each round (metrics.json, TensorBoard).
     """
 
-    def __init__(self, datamodule: CollisionDataModule, acquire: UniformAcquisition, evaluate: Callable,
+    def __init__(self, datamodule: CollisionDataModule, acquire: UniformAcquisition | None, evaluate: Callable,
                  bootstrap: Schedule, update: Schedule, n_aug: int, max_rounds: int, stop_at_elbow: bool,
                  elbow_min_points: int, elbow_sensitivity: float, checkpoint_path: str | Path, seed: int,
                  select_best_val: bool = True, on_round: Callable[..., None] | None = None,
                  extra_eval: Callable | None = None):
         if n_aug < 1 or max_rounds < 0:
             raise ValueError(f"n_aug={n_aug} must be >= 1 and max_rounds={max_rounds} >= 0")
+        if acquire is None and max_rounds > 0:
+            raise ValueError(f"max_rounds={max_rounds} rounds need an acquisition (acquire=None: bootstrap only)")
         self.dm = datamodule
         self.acquire = acquire
         self.evaluate = evaluate
@@ -121,7 +123,8 @@ class RoundCallback(L.Callback):
                 "round_end_epoch": self.round_end_epoch, "rounds": self.rounds,
                 "finished": self.finished, "stopped_by": self.stopped_by, "elbow": self.elbow,
                 "seconds": dict(self.seconds), "store_len": self.store_len, "batch_size": self.dm.batch_size,
-                "acquire": self.acquire.state_dict(), "schedules": [asdict(self.bootstrap), asdict(self.update)]}
+                "acquire": None if self.acquire is None else self.acquire.state_dict(),
+                "schedules": [asdict(self.bootstrap), asdict(self.update)]}
 
     def load_state_dict(self, state: dict) -> None:
         wanted = [asdict(self.bootstrap), asdict(self.update)]
@@ -137,7 +140,8 @@ class RoundCallback(L.Callback):
         self.seconds = dict(state["seconds"])
         self.store_len = state["store_len"]
         self.dm.batch_size = int(state["batch_size"])
-        self.acquire.load_state_dict(state["acquire"])
+        if self.acquire is not None:
+            self.acquire.load_state_dict(state["acquire"])
 
     # ---------------------------------------------------------------- hooks
     def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:

@@ -178,6 +178,21 @@ def repair_settings(cfg) -> RepairSettings | None:
     return s if s.enabled else None
 
 
+def repair_from_config(cfg, enabled: bool | None = None, overrides=()) -> RepairSettings | None:
+    """The contact repair a run's config asks for: its ``handler.repair`` (a run older than the repair has none:
+    off), with ``key=value`` ``overrides`` and ``enabled`` forcing it on or off; None when off. The one reading of
+    the setting (``experiments.run``, :meth:`neuralcol.api.TrainedRun.resolve`, ``experiments.evaluate_realistic``).
+    """
+    from omegaconf import OmegaConf
+
+    node = OmegaConf.select(cfg, "handler.repair")
+    base = OmegaConf.create({"enabled": False} if node is None else OmegaConf.to_container(node, resolve=True))
+    c = OmegaConf.to_container(OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides))), resolve=True)
+    if enabled is not None:
+        c["enabled"] = bool(enabled)
+    return repair_settings(c)
+
+
 def repair_meshes(vertices: np.ndarray, faces: np.ndarray, labeler, settings: RepairSettings, eps: float,
                   diagonal: float, sign: float, progress: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`repair_contacts` of every mesh (N, V, 3), in this process.
