@@ -12,7 +12,7 @@ Three parts (``scale.parts``), each resumable:
   at most one commit and a rerun goes on where it stopped. Each piece's wall time and labels per second are
   recorded in ``scale_curve.json``.
 * ``train``: for each size n and method (``scale.methods``: the supv / supv_bd rounds of the pipeline, same
-  losses and schedule as :func:`neuralcol.diagnose.curve.fit_detector`) trains a fresh detector on the first
+  losses and schedule as :func:`neuralcol.diagnose.curve.fit_rows`) trains a fresh detector on the first
   n rows and scores it on the whole test set. Each record is written to ``scale_curve.json`` as it finishes;
   a rerun skips the records it has.
 * ``plot``: ``scale_curve.png`` (accuracy and FNR against n, log axis, majority class; labeling and training
@@ -106,7 +106,7 @@ def label_part(cfg: DictConfig, oracle, key: str, state: dict, out: Path) -> Non
 
 
 def train_part(cfg: DictConfig, space, oracle, key: str, state: dict, out: Path) -> None:
-    from neuralcol.diagnose.curve import fit_detector, take_rows, test_metrics
+    from neuralcol.diagnose.curve import fit_rows, take_rows
     from neuralcol.nn.detector import build_detector
     from neuralcol.samples.uniform import uniform_rows
 
@@ -136,10 +136,8 @@ def train_part(cfg: DictConfig, space, oracle, key: str, state: dict, out: Path)
                     continue
                 torch.manual_seed(int(s))
                 net = build_detector(space, det)
-                fit = fit_detector(net, sub, pd_unit, det["loss"], float(m.w_b), bool(m.use_boundary_set),
-                                   float(det["targets"]["pd_clip"]), det["targets"].get("pd_floor"),
-                                   int(det["epochs"]), float(det["lr"]), int(det["batch_size"]), int(s))
-                rec = {"size": n, "model": str(m.name), "seed": int(s), **fit, "test": test_metrics(net, test)}
+                fit = fit_rows(net, sub, test, pd_unit, det, float(m.w_b), bool(m.use_boundary_set), int(s))
+                rec = {"size": n, "model": str(m.name), "seed": int(s), **fit}
                 state["records"].append(rec)
                 save_state(out, state)
                 print(f"train: n={n:,} {m.name} seed {s}: test accuracy {rec['test']['accuracy']:.4f}, FNR "

@@ -180,11 +180,8 @@ class TrainedRun:
         self.detector = detector.to(self.device).eval()
         self.mesh_detector = None if mesh_detector is None else mesh_detector.to(self.device).eval()
         self.pd_unit, self.temperature = float(pd_unit), float(temperature)
-        pool_cfg = OmegaConf.to_container(cfg.labeling.pool, resolve=True)
-        pool_cfg["progress"] = bool(progress)
-        if workers is not None:
-            pool_cfg["workers"] = int(workers)
-        self._pool_cfg = pool_cfg
+        # the label pool's settings that differ from the run's labeling.pool
+        self._pool_cfg = {"progress": bool(progress), **({} if workers is None else {"workers": int(workers)})}
         self._pool = None
         self._fast: dict = {}  # compiled copies of the detector by dtype (detect(..., fast=...))
         self._exact = None
@@ -324,13 +321,9 @@ class TrainedRun:
         """The run's label pool (its exact labeler on worker processes; opened on first use, closed by
         :meth:`close`)."""
         if self._pool is None:
-            from neuralcol.collision.backends import build_labeler
-            from neuralcol.collision.pool import LabelPool
-
-            space = self.space
-            self._exact = build_labeler(self.cfg.labeling, self.faces, space.rest_vertices.cpu().numpy(),
-                                          partition=space.partition.cpu().numpy())
-            self._pool = LabelPool(self._exact, **self._pool_cfg, desc="labeling").__enter__()
+            ctx = self.context()
+            self._exact = ctx.sample_labeler()
+            self._pool = ctx.pool(self._exact, **self._pool_cfg, desc="labeling").__enter__()
         return self._pool
 
     @property

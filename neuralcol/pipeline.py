@@ -120,8 +120,11 @@ class RunContext:
         return build_labeler(self.cfg.labeling, self.faces, self.rest, partition=partition)
 
     def sample_labeler(self):
-        """The labeler of decoded samples: PD_i over the latent space's sub-domains."""
-        return self.labeler(partition=self.space.partition.numpy())
+        """The labeler of decoded samples: PD_i over the latent space's sub-domains (topology and rest mesh from
+        the latent space, which holds the data set's; no data set needs loading)."""
+        space = self.space
+        return build_labeler(self.cfg.labeling, space.faces.cpu().numpy(), space.rest_vertices.cpu().numpy(),
+                             partition=space.partition.cpu().numpy())
 
     def pool(self, labeler, **overrides) -> LabelPool:
         """A label pool (``labeling.pool``, with ``overrides``) over ``labeler``; use it as a context manager."""

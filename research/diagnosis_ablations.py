@@ -80,7 +80,7 @@ LOSS_VARIANTS = {
 
 def cmd_loss(args) -> dict:
     from neuralcol.collision.labeler import split_subsets
-    from neuralcol.diagnose.curve import fit_detector, take_rows, test_metrics
+    from neuralcol.diagnose.curve import fit_rows, take_rows
     from neuralcol.nn.detector import build_detector
 
     s = _Setup(_cfg(args.dataset, args.set), need_rows=args.rows)
@@ -96,10 +96,9 @@ def cmd_loss(args) -> dict:
         for seed in args.seeds:
             torch.manual_seed(seed)
             net = build_detector(s.space, {**det, "net": {**det["net"], "decoder_features": v["decoder_features"]}})
-            loss = {**det["loss"], "ce_on_boundary": v.get("ce_on_boundary", False)}
-            fit_detector(net, r, s.cap, loss, v.get("w_b", 0.5), True, v["pd_clip"], v["pd_floor"], det["epochs"],
-                         det["lr"], det["batch_size"], seed)
-            m = test_metrics(net, s.test)
+            det_v = {**det, "loss": {**det["loss"], "ce_on_boundary": v.get("ce_on_boundary", False)},
+                     "targets": {"pd_clip": v["pd_clip"], "pd_floor": v["pd_floor"]}}
+            m = fit_rows(net, r, s.test, s.cap, det_v, v.get("w_b", 0.5), True, seed)["test"]
             res.append([m["accuracy"], m["fnr"]])
         a = np.asarray(res)
         out[name] = {"accuracy": a[:, 0].tolist(), "fnr": a[:, 1].tolist()}
@@ -187,7 +186,7 @@ def cmd_latent(args) -> dict:
 # ------------------------------------------------------------------------------------------------ selection
 def cmd_selection(args) -> dict:
     from neuralcol.collision.labeler import split_subsets
-    from neuralcol.diagnose.curve import fit_detector, test_metrics
+    from neuralcol.diagnose.curve import fit_rows
     from neuralcol.nn.detector import build_detector
 
     s = _Setup(_cfg(args.dataset, args.set), need_rows=args.pool)
@@ -209,9 +208,7 @@ def cmd_selection(args) -> dict:
             for r in range(rounds + 1):
                 torch.manual_seed(seed)
                 net = build_detector(s.space, det)
-                fit_detector(net, sub(chosen), s.cap, det["loss"], 0.5, True, det["targets"]["pd_clip"],
-                             det["targets"].get("pd_floor"), det["epochs"], det["lr"], det["batch_size"], seed)
-                m = test_metrics(net, s.test)
+                m = fit_rows(net, sub(chosen), s.test, s.cap, det, 0.5, True, seed)["test"]
                 curve.append({"size": len(chosen), "accuracy": m["accuracy"], "fnr": m["fnr"]})
                 print(f"{mode} seed {seed}: {len(chosen)} rows, accuracy {m['accuracy']:.4f}, FNR {m['fnr']:.3f}",
                       flush=True)

@@ -17,6 +17,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from neuralcol.collision.labeler import SUBSET_BOUNDARY
 from neuralcol.utils.files import atomic_path
 
 
@@ -231,7 +232,7 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
         l_ce = F.binary_cross_entropy_with_logits(out.logit[label_mask], target)
     else:
         l_ce = agg.new_zeros(())
-    bmask = subset == 2  # SUBSET_BOUNDARY (neuralcol.collision.labeler): D_b
+    bmask = subset == SUBSET_BOUNDARY  # D_b
     if boundary_reduction not in BOUNDARY_REDUCTIONS:
         raise ValueError(f"boundary_reduction={boundary_reduction!r}; use 'boundary' (the paper's) or 'batch'")
     if not bmask.any():
