@@ -34,7 +34,7 @@ from omegaconf import OmegaConf
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _cfg(dataset: str, extra: list[str], config: str = "diagnose"):
+def study_config(dataset: str, extra: list[str], config: str = "diagnose"):
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         return compose(config, overrides=[f"dataset={dataset}", "autoencoder.progress_bar=false",
                                           "labeling.pool.progress=false", *extra])
@@ -83,7 +83,7 @@ def cmd_loss(args) -> dict:
     from neuralcol.diagnose.curve import fit_rows, take_rows
     from neuralcol.nn.detector import build_detector
 
-    s = _Setup(_cfg(args.dataset, args.set), need_rows=args.rows)
+    s = _Setup(study_config(args.dataset, args.set), need_rows=args.rows)
     det = OmegaConf.to_container(s.cfg.detector, resolve=True)
     diag = s.space.rest_vertices.numpy()
     diag = float(np.linalg.norm(diag.max(0) - diag.min(0)))
@@ -114,7 +114,7 @@ def cmd_regression(args) -> dict:
 
     from neuralcol.diagnose.curve import box_scaled
 
-    s = _Setup(_cfg(args.dataset, args.set), need_rows=max(args.sizes))
+    s = _Setup(study_config(args.dataset, args.set), need_rows=max(args.sizes))
     lo, hi = s.space.box_lo.numpy().astype(np.float64), s.space.box_hi.numpy().astype(np.float64)
     x, xt = box_scaled(s.rows.z, lo, hi), box_scaled(s.test.z, lo, hi)
     pd, yt = np.asarray(s.rows.pd), np.asarray(s.test.pd) > 0
@@ -152,7 +152,7 @@ def cmd_latent(args) -> dict:
 
     out = {}
     for name in args.variants or list(LATENT_VARIANTS):
-        cfg = _cfg(args.dataset, [*args.set, *LATENT_VARIANTS[name]])
+        cfg = study_config(args.dataset, [*args.set, *LATENT_VARIANTS[name]])
         t0 = time.perf_counter()
         ctx = diagnose_context(cfg)
         space, report = ctx.space, ctx.latent_space().report
@@ -189,7 +189,7 @@ def cmd_selection(args) -> dict:
     from neuralcol.diagnose.curve import fit_rows
     from neuralcol.nn.detector import build_detector
 
-    s = _Setup(_cfg(args.dataset, args.set), need_rows=args.pool)
+    s = _Setup(study_config(args.dataset, args.set), need_rows=args.pool)
     det = OmegaConf.to_container(s.cfg.detector, resolve=True)
     pool = s.rows._replace(subset=split_subsets(s.rows.pd, s.eps))
     n0, na, rounds = args.n_init, args.n_aug, args.rounds
@@ -243,7 +243,7 @@ def cmd_margin(args) -> dict:
         cfg = OmegaConf.load(RunDir(run).config)
         overrides = [str(o) for o in OmegaConf.load(RunDir(run).overrides)
                      if not str(o).startswith(("dataset=", "hydra"))]
-        s = _Setup(_cfg(str(cfg.dataset.name), [*overrides, *args.set]))
+        s = _Setup(study_config(str(cfg.dataset.name), [*overrides, *args.set]))
         pick = np.flatnonzero(s.test.pd > 0)[: args.inputs]
         z_user, pd_user = torch.as_tensor(s.test.z[pick]), s.test.pd[pick]
         base = ALMSettings(**OmegaConf.to_container(s.cfg.handler.alm, resolve=True))

@@ -251,12 +251,12 @@ def test_uncertain_start_selects_the_codes_nearest_the_level_set(tmp_path):
 
 def test_ablation_bench_configs_compose():
     """Every variant of `python -m research.diagnosis_ablations` composes against conf/ (keys exist, no `+` needed)."""
-    from research.diagnosis_ablations import LATENT_VARIANTS, _cfg
+    from research.diagnosis_ablations import LATENT_VARIANTS, study_config
 
     for name, overrides in LATENT_VARIANTS.items():
-        cfg = _cfg("proc_hand", list(overrides))
+        cfg = study_config("proc_hand", list(overrides))
         assert "diagnose" in cfg and cfg.autoencoder.level1.activation in ("tanh", "linear"), name
-    assert _cfg("proc_hand", ["autoencoder.level1.code_noise=0.3"]).autoencoder.level1.code_noise == 0.3
+    assert study_config("proc_hand", ["autoencoder.level1.code_noise=0.3"]).autoencoder.level1.code_noise == 0.3
 
 
 def _write_curve(folder: Path, records: list[dict]) -> None:

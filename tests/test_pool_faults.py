@@ -17,7 +17,7 @@ import pytest
 import torch
 from fault_labelers import EXIT, FLAKY, HANG, NAN, RAISE, FaultLabeler, mark, two_spheres
 
-from neuralcol.active.acquisition import AcquiredRows, UniformAcquisition, _concat
+from neuralcol.active.acquisition import AcquiredRows, UniformAcquisition, concat_acquired
 from neuralcol.collision.labeler import ExactLabeler, Labels
 from neuralcol.collision.pool import LabelingError, LabelPool
 from neuralcol.samples.oracle import LatentOracle
@@ -232,4 +232,4 @@ def test_concat_sums_label_failures():
     def part(n_failed):
         return AcquiredRows(*(np.zeros(0) for _ in range(6)), 0.0, 0.0, {"n_label_failures": n_failed})
 
-    assert _concat([part(2), part(3)]).info["n_label_failures"] == 5
+    assert concat_acquired([part(2), part(3)]).info["n_label_failures"] == 5

@@ -48,7 +48,7 @@ class AcquiredRows(NamedTuple):
     info: dict
 
 
-def _concat(parts: list[AcquiredRows]) -> AcquiredRows:
+def concat_acquired(parts: list[AcquiredRows]) -> AcquiredRows:
     cat = [np.concatenate([getattr(p, f) for p in parts]) for f in AcquiredRows._fields[:6]]
     info: dict = {}
     for p in parts:
@@ -200,4 +200,4 @@ class ProjectedAcquisition(UniformAcquisition):
         if "projection" in projected.info:  # the same shares for this round's uniform samples, for comparison
             eps = float(self.oracle.pool.labeler.eps)
             projected.info["projection"]["uniform"] = boundary_shares(uniform.pd, eps)
-        return _concat([projected, uniform])
+        return concat_acquired([projected, uniform])
