@@ -195,5 +195,8 @@ def export_handling(out_dir: Path, arrays: dict, space, labeler, n_examples: int
             shown.append(("verified", v, arrays["pd_after_verified"][i]))
         for name, verts, pd in shown:
             write_mesh(out_dir / f"example_{i}_{name}.obj", verts, faces)
-            render_mesh_png(out_dir / f"example_{i}_{name}.png", verts, faces,
-                            depth_colors(labeler.vertex_depths(verts)), title=f"{name}: PD = {pd:.3g}")
+            # per-vertex depths colour the penetration where the backend gives them (the cpu labeler does;
+            # the fcl and gpu backends do not: the mesh is drawn grey, its PD in the title)
+            depths = labeler.vertex_depths(verts) if hasattr(labeler, "vertex_depths") else np.zeros(len(verts))
+            render_mesh_png(out_dir / f"example_{i}_{name}.png", verts, faces, depth_colors(depths),
+                            title=f"{name}: PD = {pd:.3g}")
