@@ -63,8 +63,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     if cfg.get("model_size") is not None and cfg.model_size.mode == "auto":  # choose the sizes first (issue 17)
         cfg, size_doc = search_model_size(cfg, run_dir, ds, feats, run, train_or_load_latent_space)
         seed_everything(cfg.seed if cfg.seed is not None else None)  # as if the sizes had been given
-        ctx = RunContext(cfg, run_dir)
-        ctx.dataset, ctx.features = ds, feats  # (cached_property: the same data set and features)
+        ctx = ctx.reconfigured(cfg)
     recon, acap_metrics = acap_round_trip(ds, feats)
     faces, rest = ctx.faces, ctx.rest
     # exact labels of the data set's own meshes (the paper assumes they are (nearly) collision-free)

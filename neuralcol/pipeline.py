@@ -56,6 +56,13 @@ class RunContext:
         self.cache = CacheDir(cfg.paths.cache_dir)
         self._latent: LatentStage | None = None
 
+    def reconfigured(self, cfg: DictConfig) -> RunContext:
+        """A context of ``cfg`` (e.g. with the sizes a model-size search chose) sharing this one's data set and
+        ACAP features (so neither is loaded again; ``cfg`` must not change the data set or ``acap``)."""
+        other = RunContext(cfg, None if self.run_dir is None else self.run_dir.path)
+        other.dataset, other.features = self.dataset, self.features  # fills the cached properties
+        return other
+
     # ------------------------------------------------------------------ data
     @cached_property
     def dataset(self):
