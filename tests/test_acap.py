@@ -165,16 +165,17 @@ def test_decode_on_cuda(scape, scape_acap):
 
 
 def test_no_gradient_decode_equals_the_differentiable_one(scape, scape_acap):
-    """The numba right-hand side (decode without a graph, issue 29) against the torch ops of the differentiable
-    decode, on real poses (large and small angles) and a near-identity pose (Taylor branch)."""
+    """The numba right-hand side (``decode(..., fast=True)`` without a graph, issue 29) against the torch ops
+    of the differentiable decode, on real poses (large and small angles) and a near-identity pose (Taylor branch)."""
     feats = scape_acap.encode(scape.vertices[:6].to(torch.float64))
     feats = torch.cat([feats, scape_acap.identity_features(1, torch.float64) + 1e-5])
     graph = scape_acap.decode(feats.clone().requires_grad_(True)).detach()
     with torch.no_grad():
-        fast = scape_acap.decode(feats)
+        fast = scape_acap.decode(feats, fast=True)
+        assert torch.equal(scape_acap.decode(feats), graph), "the default keeps the torch path"
     assert fast.dtype == torch.float64 and torch.allclose(fast, graph, rtol=0, atol=1e-12)
     with torch.no_grad():
-        fast32 = scape_acap.decode(feats.float())
+        fast32 = scape_acap.decode(feats.float(), fast=True)
     graph32 = scape_acap.decode(feats.float().requires_grad_(True)).detach()
     assert fast32.dtype == torch.float32 and torch.allclose(fast32, graph32, rtol=0, atol=1e-5)
-    assert torch.allclose(scape_acap.decode(feats[0]), fast[0], rtol=0, atol=1e-12)  # one (V, 9) mesh
+    assert torch.allclose(scape_acap.decode(feats[0], fast=True), fast[0], rtol=0, atol=1e-12)  # one (V, 9) mesh
