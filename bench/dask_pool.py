@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from bench.context import BenchContext
-from bench.timing import summarize
+from bench.timing import repeat_interleaved, summarize
 
 
 def measure(ctx: BenchContext) -> dict:
@@ -26,14 +24,7 @@ def measure(ctx: BenchContext) -> dict:
             LabelPool(lab, executor="dask", workers=2, chunk_size=32) as dask_pool:
         local.label(batch)  # start the workers (and the cluster) and load the kernels outside the timing
         dask_pool.label(batch)
-        tl, td = [], []
-        for _ in range(reps):  # interleaved, so both see the same machine load
-            t0 = time.perf_counter()
-            local.label(batch)
-            tl.append(time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            dask_pool.label(batch)
-            td.append(time.perf_counter() - t0)
+        tl, td = repeat_interleaved(lambda: local.label(batch), lambda: dask_pool.label(batch), reps)
     n = len(batch)
     ctx.notes["dask"] = ("LocalCluster of 2 worker processes x 1 thread on this machine (executor=dask, "
                          "scheduler=null), 568 SCAPE meshes, chunk_size 32, vs the local pool with workers=2; "

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from bench.context import BenchContext
-from bench.timing import summarize
+from bench.timing import repeat_interleaved, summarize
 
 
 def measure(ctx: BenchContext) -> dict:
@@ -23,14 +21,7 @@ def measure(ctx: BenchContext) -> dict:
     with LabelPool(lab, workers=1, chunk_size=8) as one, LabelPool(lab, workers=2, chunk_size=8) as two:
         one.label(batch[:4])
         two.label(batch[:16])  # start the worker processes outside the timing
-        t1, t2 = [], []
-        for _ in range(reps):  # interleaved, so both see the same machine load
-            t0 = time.perf_counter()
-            one.label(batch)
-            t1.append(time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            two.label(batch)
-            t2.append(time.perf_counter() - t0)
+        t1, t2 = repeat_interleaved(lambda: one.label(batch), lambda: two.label(batch), reps)
     n = len(batch)
     r1 = summarize([n / t for t in t1])
     r2 = summarize([n / t for t in t2])

@@ -22,6 +22,19 @@ def repeat(fn: Callable[[], object], reps: int, warmup: int = 1) -> list[float]:
     return out
 
 
+def repeat_interleaved(fn_a: Callable[[], object], fn_b: Callable[[], object],
+                       reps: int) -> tuple[list[float], list[float]]:
+    """Wall-clock seconds of ``reps`` calls of ``fn_a`` and ``fn_b``, alternating call by call so both see the same
+    machine load (warm them up first)."""
+    ta, tb = [], []
+    for _ in range(reps):
+        for fn, out in ((fn_a, ta), (fn_b, tb)):
+            t0 = time.perf_counter()
+            fn()
+            out.append(time.perf_counter() - t0)
+    return ta, tb
+
+
 def per_mesh_times(fn: Callable[[object], object], meshes: Sequence, reps: int) -> list[float]:
     """Seconds per mesh of ``fn`` over all ``meshes`` (a list or an (N, V, 3) array), once per repetition."""
     per_rep = []
