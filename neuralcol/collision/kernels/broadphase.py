@@ -80,6 +80,99 @@ def grid_cells(lo, hi, cell):
 
 
 @njit(cache=True)
+def sorted_cells(lo, hi, cell):
+    """Boxes ``lo``/``hi`` (F, 3) binned into a uniform grid of ``cell``, each cell's entries in ascending order of
+    their box's lower x (ties: ascending box index), for a sweep along x that stops at the first entry starting
+    beyond a box's end. A counting sort over the cells (a stable argsort of the keys when the grid is much larger
+    than the number of entries); no per-cell sort.
+
+    Returns:
+        cell_keys (C,) the non-empty cells in ascending order, start (C + 1,) offsets of each cell's entries,
+        ids (E,) the box of each entry, ilo (F, 3) each box's lower cell, dims (3,) cells per axis
+        (key = (x * dims[1] + y) * dims[2] + z).
+    """
+    n = lo.shape[0]
+    origin = np.empty(3)
+    for d in range(3):
+        origin[d] = lo[:, d].min()
+    inv = 1.0 / cell
+    ilo = np.empty((n, 3), dtype=np.int64)
+    ihi = np.empty((n, 3), dtype=np.int64)
+    total = 0
+    for f in range(n):
+        cnt = 1
+        for d in range(3):
+            ilo[f, d] = int((lo[f, d] - origin[d]) * inv)
+            ihi[f, d] = int((hi[f, d] - origin[d]) * inv)
+            cnt *= ihi[f, d] - ilo[f, d] + 1
+        total += cnt
+    dims = np.empty(3, dtype=np.int64)
+    for d in range(3):
+        dims[d] = ihi[:, d].max() + 1
+    n_cells = dims[0] * dims[1] * dims[2]
+    order = np.argsort(lo[:, 0], kind="mergesort")
+    ids = np.empty(total, dtype=np.int64)
+    if n_cells <= 4 * total + 4096:
+        count = np.zeros(n_cells + 1, dtype=np.int64)
+        for f in range(n):
+            for x in range(ilo[f, 0], ihi[f, 0] + 1):
+                for y in range(ilo[f, 1], ihi[f, 1] + 1):
+                    for z in range(ilo[f, 2], ihi[f, 2] + 1):
+                        count[(x * dims[1] + y) * dims[2] + z + 1] += 1
+        n_used = 0
+        for c in range(n_cells):
+            if count[c + 1] > 0:
+                n_used += 1
+            count[c + 1] += count[c]
+        fill = count[:-1].copy()
+        for k in range(n):
+            f = order[k]
+            for x in range(ilo[f, 0], ihi[f, 0] + 1):
+                for y in range(ilo[f, 1], ihi[f, 1] + 1):
+                    for z in range(ilo[f, 2], ihi[f, 2] + 1):
+                        c = (x * dims[1] + y) * dims[2] + z
+                        ids[fill[c]] = f
+                        fill[c] += 1
+        cell_keys = np.empty(n_used, dtype=np.int64)
+        start = np.empty(n_used + 1, dtype=np.int64)
+        m = 0
+        for c in range(n_cells):
+            if count[c + 1] > count[c]:
+                cell_keys[m] = c
+                start[m] = count[c]
+                m += 1
+        start[n_used] = total
+        return cell_keys, start, ids, ilo, dims
+    keys = np.empty(total, dtype=np.int64)
+    k = 0
+    for r in range(n):
+        f = order[r]
+        for x in range(ilo[f, 0], ihi[f, 0] + 1):
+            for y in range(ilo[f, 1], ihi[f, 1] + 1):
+                for z in range(ilo[f, 2], ihi[f, 2] + 1):
+                    keys[k] = (x * dims[1] + y) * dims[2] + z
+                    ids[k] = f
+                    k += 1
+    by_cell = np.argsort(keys, kind="mergesort")  # stable: each cell's entries stay in lower-x order
+    keys = keys[by_cell]
+    ids = ids[by_cell]
+    n_used = 0
+    for e in range(total):
+        if e == 0 or keys[e] != keys[e - 1]:
+            n_used += 1
+    cell_keys = np.empty(n_used, dtype=np.int64)
+    start = np.empty(n_used + 1, dtype=np.int64)
+    m = 0
+    for e in range(total):
+        if e == 0 or keys[e] != keys[e - 1]:
+            cell_keys[m] = keys[e]
+            start[m] = e
+            m += 1
+    start[n_used] = total
+    return cell_keys, start, ids, ilo, dims
+
+
+@njit(cache=True)
 def grid_pairs_active(lo, hi, cell, active, pts, skip2):
     """Like :func:`grid_pairs`, only the pairs with at least one box marked in ``active`` (F,) bool and whose
     points ``pts`` (F, 3) are at least ``sqrt(skip2)`` apart (``skip2 < 0``: no such filter)."""

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from neuralcol.collision.kernels.broadphase import boxes_overlap, grid_cells, shared_vertex_count
+from neuralcol.collision.kernels.broadphase import boxes_overlap, shared_vertex_count, sorted_cells
 from neuralcol.collision.kernels.depth import axes_gap
 from neuralcol.collision.kernels.distance import cone_gap
 from neuralcol.collision.kernels.pair_terms import count_pair, lower_clearance, near_index, pair_terms, part_min
@@ -138,45 +138,23 @@ def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, 
         n_pairs (counted), rec_key, rec_int, n_rec.
     """
     n = lo.shape[0]
-    keys, ids, ilo, dims = grid_cells(lo, hi, cell)
-    total = keys.shape[0]
-    # entries in cell order, each cell's entries sorted by their box's lower x (insertion sort: cells are
-    # small), copied contiguously; a sweep along x stops at the first entry that starts beyond the box's end
-    s_lo = np.empty((total, 3))
-    s_hi = np.empty((total, 3))
+    cell_keys, cell_start, ids, ilo, dims = sorted_cells(lo, hi, cell)
+    total = ids.shape[0]
+    # the entries' boxes, contiguous per coordinate in entry order (each cell's entries by ascending lower x)
+    xl = np.empty(total)
+    xh = np.empty(total)
+    yl = np.empty(total)
+    yh = np.empty(total)
+    zl = np.empty(total)
+    zh = np.empty(total)
     for e in range(total):
         f = ids[e]
-        for d in range(3):
-            s_lo[e, d] = lo[f, d]
-            s_hi[e, d] = hi[f, d]
-    start = 0
-    while start < total:
-        end = start + 1
-        while end < total and keys[end] == keys[start]:
-            end += 1
-        for e in range(start + 1, end):
-            x = s_lo[e, 0]
-            f = ids[e]
-            y0 = s_lo[e, 1]
-            z0 = s_lo[e, 2]
-            x1 = s_hi[e, 0]
-            y1 = s_hi[e, 1]
-            z1 = s_hi[e, 2]
-            m = e - 1
-            while m >= start and s_lo[m, 0] > x:
-                ids[m + 1] = ids[m]
-                for d in range(3):
-                    s_lo[m + 1, d] = s_lo[m, d]
-                    s_hi[m + 1, d] = s_hi[m, d]
-                m -= 1
-            ids[m + 1] = f
-            s_lo[m + 1, 0] = x
-            s_lo[m + 1, 1] = y0
-            s_lo[m + 1, 2] = z0
-            s_hi[m + 1, 0] = x1
-            s_hi[m + 1, 1] = y1
-            s_hi[m + 1, 2] = z1
-        start = end
+        xl[e] = lo[f, 0]
+        xh[e] = hi[f, 0]
+        yl[e] = lo[f, 1]
+        yh[e] = hi[f, 1]
+        zl[e] = lo[f, 2]
+        zh[e] = hi[f, 2]
     # per triangle, the largest clearance (capped) among its vertices' parts when the pass starts
     tri_thr = np.zeros(n)
     for f in range(n):
@@ -184,24 +162,27 @@ def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, 
             for i in range(3):
                 tri_thr[f] = max(tri_thr[f], min(clear[part[faces[f, i]]], cap))
     n_pairs = 0
-    start = 0
-    while start < total:
-        end = start + 1
-        while end < total and keys[end] == keys[start]:
-            end += 1
-        key = keys[start]
+    for ci in range(cell_keys.shape[0]):
+        start = cell_start[ci]
+        end = cell_start[ci + 1]
+        if end - start < 2:
+            continue
+        key = cell_keys[ci]
         cz = key % dims[2]
         cy = (key // dims[2]) % dims[1]
         cx = key // (dims[2] * dims[1])
         for i in range(start, end):
             a0 = ids[i]
-            ax1 = s_hi[i, 0]
+            ax1 = xh[i]
+            ay0 = yl[i]
+            ay1 = yh[i]
+            az0 = zl[i]
+            az1 = zh[i]
             for j in range(i + 1, end):
-                if s_lo[j, 0] > ax1:
+                if xl[j] > ax1:
                     break  # this and every later entry of the cell start beyond a0's box in x
-                if (s_lo[j, 1] > s_hi[i, 1] or s_lo[i, 1] > s_hi[j, 1] or s_lo[j, 2] > s_hi[i, 2]
-                        or s_lo[i, 2] > s_hi[j, 2]):
-                    continue  # (x overlaps: s_lo[i, 0] <= s_lo[j, 0] <= s_hi[i, 0])
+                if yl[j] > ay1 or ay0 > yh[j] or zl[j] > az1 or az0 > zh[j]:
+                    continue  # (x overlaps: xl[i] <= xl[j] <= xh[i])
                 b0 = ids[j]
                 if (max(ilo[a0, 0], ilo[b0, 0]) != cx or max(ilo[a0, 1], ilo[b0, 1]) != cy
                         or max(ilo[a0, 2], ilo[b0, 2]) != cz):
@@ -209,8 +190,8 @@ def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, 
                 a = min(a0, b0)
                 b = max(a0, b0)
                 if boxes_overlap(lo0, hi0, a, b):
-                    if near_index(near_ptr, near_b, a, b) >= 0 or shared_vertex_count(faces, a, b) > 0:
-                        continue  # near or adjacent: not a far pair
+                    if shared_vertex_count(faces, a, b) > 0 or near_index(near_ptr, near_b, a, b) >= 0:
+                        continue  # adjacent or near: not a far pair
                     g = _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi)
                     if g > tau and g * BOUND_SHRINK >= part_min(clear, part, faces, a, b, cap):
                         continue  # not counted (depth <= -g), and its distance >= g cannot lower a clearance
@@ -247,5 +228,4 @@ def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, 
                 evaluated, depth, c = pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear, part)
                 if evaluated:
                     lower_clearance(clear, part, faces, a, b, c)
-        start = end
     return n_pairs, rec_key, rec_int, n_rec
