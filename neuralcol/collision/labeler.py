@@ -272,11 +272,12 @@ class ExactLabeler(MeshByMesh):
         # 1. near pairs, from the rest mesh's table (no broadphase): counted pairs among those with overlapping
         #    boxes, and the clearance terms a per-triangle SAT bound cannot rule out
         axes = triangle_axes(v, f, self.ell)
-        cones = corner_cones(v, f)
+        units, normals = self._corner_scratch()
+        cones = corner_cones(v, f, units, normals)
         n_near, rec_key, rec_int, n_rec = near_pass(
             v, f, self._near_ptr, self._near_b, self._near_rest, self._near_shared, lo0, hi0, lo_cap, hi_cap, *axes,
-            *cones, self.ell, self.tau, self.cap, clear, floor, self.partition, self.adj_ptr, self.adj_idx,
-            self.adj_eid, self.orient, rec_key, rec_int, 0, *self._near_scratch())
+            *cones, units, normals, self.ell, self.tau, self.cap, clear, floor, self.partition, self.adj_ptr,
+            self.adj_idx, self.adj_eid, self.orient, rec_key, rec_int, 0, *self._near_scratch())
         # 2. far pairs, one grid: counted pairs among those with overlapping boxes, and the clearance terms of
         #    the pairs closer than the clearance they would have to beat
         n_far, rec_key, rec_int, n_rec = self._far_pass(v, lo0, hi0, lo_cap, hi_cap, axes, clear, floor, rec_key,
@@ -303,9 +304,19 @@ class ExactLabeler(MeshByMesh):
             scratch = self._scratch = (np.empty((2, n), dtype=np.int64), np.empty(n))
         return scratch
 
+    def _corner_scratch(self):
+        """Corner frames of :func:`~neuralcol.collision.kernels.distance.corner_cones` ((F, 3, 2, 3) unit edge
+        directions, (F, 3, 3) arc normals), filled per mesh into arrays made once per labeler (not pickled)."""
+        scratch = getattr(self, "_corners", None)
+        if scratch is None:
+            n = len(self.faces)
+            scratch = self._corners = (np.empty((n, 3, 2, 3)), np.empty((n, 3, 3)))
+        return scratch
+
     def __getstate__(self):
         state = dict(self.__dict__)
         state.pop("_scratch", None)
+        state.pop("_corners", None)
         return state
 
     def _far_pass(self, v, lo0, hi0, lo_cap, hi_cap, axes, clear, floor, rec_key, rec_int, n_rec):

@@ -190,13 +190,18 @@ def corner_angle(verts, faces, a, b):
 
 
 @njit(cache=True)
-def corner_cones(verts, faces):
+def corner_cones(verts, faces, units=None, normals=None):
     """The corner of every triangle at each of its vertices as a ball of unit directions: (F, 3, 3) unit axis
     ``m`` (the bisector) and (F, 3) chordal radius ``rho = |u1 - m|`` (``u1``, ``u2``: unit edge directions;
-    every direction of the corner lies within ``rho`` of ``m``; 2, i.e. no bound, for a degenerate corner)."""
+    every direction of the corner lies within ``rho`` of ``m``; 2, i.e. no bound, for a degenerate corner).
+
+    If given, ``units`` (F, 3, 2, 3) receives each corner's ``u1`` and ``u2`` and ``normals`` (F, 3, 3) the unit
+    normal of its arc, ``_unit(u1 x u2)``, formed with the same operations as :func:`wedge_gap` forms them, so
+    :func:`corner_gap` reads them instead of recomputing them (zero vectors where :func:`_unit` gives them)."""
     n = faces.shape[0]
     axis = np.zeros((n, 3, 3))
     rho = np.full((n, 3), 2.0)
+    keep = units is not None and normals is not None
     for f in range(n):
         for i in range(3):
             p = point(verts, faces[f, i])
@@ -204,6 +209,14 @@ def corner_cones(verts, faces):
             u2 = vsub(point(verts, faces[f, (i + 2) % 3]), p)
             l1 = np.sqrt(vdot(u1, u1))
             l2 = np.sqrt(vdot(u2, u2))
+            if keep:
+                w1 = _unit(u1)
+                w2 = _unit(u2)
+                nn = _unit(vcross(w1, w2))
+                for d in range(3):
+                    units[f, i, 0, d] = w1[d]
+                    units[f, i, 1, d] = w2[d]
+                    normals[f, i, d] = nn[d]
             if l1 <= 0.0 or l2 <= 0.0:
                 continue
             u1 = vscale(u1, 1.0 / l1)
@@ -218,6 +231,53 @@ def corner_cones(verts, faces):
             e = vsub(u1, m)
             rho[f, i] = np.sqrt(vdot(e, e))
     return axis, rho
+
+
+@njit(cache=True, inline="always")
+def _arc_chord_with_normal(x, v1, v2, n):
+    """:func:`_point_arc_chord` with the arc's unit normal ``n = _unit(v1 x v2)`` given (same operations)."""
+    xp = vsub(x, vscale(n, vdot(x, n)))
+    lxp = np.sqrt(vdot(xp, xp))
+    if lxp > 0.0 and vdot(vcross(v1, xp), n) >= 0.0 and vdot(vcross(xp, v2), n) >= 0.0:
+        return np.sqrt(max(0.0, 2.0 - 2.0 * lxp))
+    d1 = vsub(x, v1)
+    d2 = vsub(x, v2)
+    return np.sqrt(min(vdot(d1, d1), vdot(d2, d2)))
+
+
+@njit(cache=True, inline="always")
+def corner_gap(faces, a, b, units, normals):
+    """:func:`corner_angle` of triangles a and b (sharing one vertex) from the corner frames of
+    :func:`corner_cones` (``units``, ``normals``): the same operations on the same numbers, so bit for bit the
+    same value, without recomputing the unit edge directions and arc normals."""
+    for i in range(3):
+        for j in range(3):
+            if faces[a, i] == faces[b, j]:
+                u1 = (units[a, i, 0, 0], units[a, i, 0, 1], units[a, i, 0, 2])
+                u2 = (units[a, i, 1, 0], units[a, i, 1, 1], units[a, i, 1, 2])
+                v1 = (units[b, j, 0, 0], units[b, j, 0, 1], units[b, j, 0, 2])
+                v2 = (units[b, j, 1, 0], units[b, j, 1, 1], units[b, j, 1, 2])
+                na = (normals[a, i, 0], normals[a, i, 1], normals[a, i, 2])
+                nb = (normals[b, j, 0], normals[b, j, 1], normals[b, j, 2])
+                nu = vcross(u1, u2)
+                nv = vcross(v1, v2)
+                s1 = vdot(u1, nv)
+                s2 = vdot(u2, nv)
+                t1 = vdot(v1, nu)
+                t2 = vdot(v2, nu)
+                x = vcross(nu, nv)
+                coplanar = vdot(x, x) <= 1e-20 * vdot(nu, nu) * vdot(nv, nv)
+                if not coplanar and s1 * s2 <= 0.0 and t1 * t2 <= 0.0:
+                    mu = vadd(u1, u2)
+                    mv = vadd(v1, v2)
+                    if (vdot(x, mu) >= 0.0 and vdot(x, mv) >= 0.0) or (vdot(x, mu) <= 0.0 and vdot(x, mv) <= 0.0):
+                        return 0.0
+                g = _arc_chord_with_normal(u1, v1, v2, nb)
+                g = min(g, _arc_chord_with_normal(u2, v1, v2, nb))
+                g = min(g, _arc_chord_with_normal(v1, u1, u2, na))
+                g = min(g, _arc_chord_with_normal(v2, u1, u2, na))
+                return g
+    return 0.0
 
 
 CONE_MARGIN = 1e-9  # taken off the cone bound (chord units): covers the round-off of the unit vectors

@@ -9,15 +9,15 @@ from numba import njit
 
 from neuralcol.collision.kernels.broadphase import boxes_overlap, shared_vertex_count, sorted_cells
 from neuralcol.collision.kernels.depth import axes_gap
-from neuralcol.collision.kernels.distance import cone_gap
+from neuralcol.collision.kernels.distance import cone_gap, corner_gap
 from neuralcol.collision.kernels.pair_terms import count_pair, lower_clearance, near_index, pair_terms, part_min
 from neuralcol.collision.kernels.vec import BOUND_SHRINK, corners
 
 
 @njit(cache=True)
 def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, lo_cap, hi_cap, axes, inv, ax_lo,
-              ax_hi, cone_axis, cone_rho, scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient,
-              rec_key, rec_int, n_rec, scratch_i, scratch_f):
+              ax_hi, cone_axis, cone_rho, cone_units, cone_normals, scale, tau, cap, clear, floor, part, adj_ptr,
+              adj_idx, adj_eid, orient, rec_key, rec_int, n_rec, scratch_i, scratch_f):
     """Every near pair (the rest mesh's table) that the reference considers (boxes within cap): counted pairs,
     their crossings, and the clearance terms that can lower a part's clearance. Lowers ``clear`` and raises
     ``floor`` in place.
@@ -107,8 +107,14 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
         if thr <= 0.0 or todo_bound[k] >= thr:
             continue
         todo_bound[k] = np.inf  # mark done
-        shared = 1 if near_shared[idx] else 0
-        evaluated, depth, c = pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap, clear, part)
+        if near_shared[idx]:
+            # its cone bound is > 0 (no bound otherwise): the corners do not overlap, so pair_terms would give
+            # depth -1 and c = cap * corner_angle / r; corner_gap is corner_angle from the mesh's corner frames
+            r = near_rest[idx]
+            c = cap if r <= 0.0 else cap * corner_gap(faces, a, b, cone_units, cone_normals) / r
+            lower_clearance(clear, part, faces, a, b, c)
+            continue
+        evaluated, depth, c = pair_terms(verts, faces, a, b, 0, idx, near_rest, scale, tau, cap, clear, part)
         if evaluated:
             lower_clearance(clear, part, faces, a, b, c)
     return n_pairs, rec_key, rec_int, n_rec
