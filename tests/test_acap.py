@@ -179,3 +179,31 @@ def test_no_gradient_decode_equals_the_differentiable_one(scape, scape_acap):
     graph32 = scape_acap.decode(feats.float().requires_grad_(True)).detach()
     assert fast32.dtype == torch.float32 and torch.allclose(fast32, graph32, rtol=0, atol=1e-5)
     assert torch.allclose(scape_acap.decode(feats[0], fast=True), fast[0], rtol=0, atol=1e-12)  # one (V, 9) mesh
+
+
+def test_decode_vertices_equals_full_decode_and_its_gradient():
+    """decode_vertices(f, idx) is decode(f)[:, idx] (to round-off, float64), the pinned root included, and so
+    is its gradient with respect to the features."""
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    rest = np.asarray(mesh.vertices)
+    acap = ACAP(rest, np.asarray(mesh.faces))
+    rng = np.random.default_rng(0)
+    bent = rest * np.array([1.3, 0.8, 1.0]) + 0.05 * rng.normal(size=rest.shape)
+    f = acap.encode(torch.as_tensor(np.stack([bent, rest]), dtype=torch.float64))
+    f = (f + 0.01 * torch.randn(f.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(1)))
+    f.requires_grad_(True)
+    idx = np.array([acap.root, 5, 17, 17, 100, len(rest) - 1])
+    full = acap.decode(f)
+    part = acap.decode_vertices(f, idx)
+    assert part.shape == (2, len(idx), 3)
+    assert torch.allclose(part, full[:, idx], atol=1e-10, rtol=0)
+    w = torch.randn(part.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
+    g_full = torch.autograd.grad((full[:, idx] * w).sum(), f)[0]
+    g_part = torch.autograd.grad((part * w).sum(), f)[0]
+    assert torch.allclose(g_part, g_full, atol=1e-9, rtol=0)
+    single = acap.decode_vertices(f[0].detach(), idx)
+    assert torch.allclose(single, full[0, idx].detach(), atol=1e-10, rtol=0)
+    with pytest.raises(ValueError, match="vertex indices"):
+        acap.decode_vertices(f.detach(), [len(rest)])

@@ -367,6 +367,16 @@ class ACAP:
         if fast and f.device.type == "cpu" and not (torch.is_grad_enabled() and f.requires_grad):
             p = self._decode_no_grad(f)
             return p[0] if single else p
+        dev, dt = f.device, f.dtype
+        keep = self._keep.to(dev)
+        x = _SparseSolve.apply(self._rhs(f), self._lu)  # (B, V-1, 3)
+        p = torch.zeros(f.shape[0], self.n_vertices, 3, dtype=dt, device=dev).index_copy(1, keep, x)
+        centroid = torch.as_tensor(self._rest_centroid, dtype=dt, device=dev)
+        p = p - p.mean(1, keepdim=True) + centroid
+        return p[0] if single else p
+
+    def _rhs(self, f: torch.Tensor) -> torch.Tensor:
+        """The solve's right-hand side ``b`` of features (B, V, 9) at the unpinned vertices: (B, V-1, 3)."""
         t = self.gradients_from_features(f)  # (B, V, 3, 3)
         dev, dt = f.device, f.dtype
         ei, ej = self._edge_i.to(dev), self._edge_j.to(dev)
@@ -374,11 +384,52 @@ class ACAP:
         g = 0.5 * ((t[:, ei] + t[:, ej]) @ evw[None, :, :, None])[..., 0]  # (B, E, 3)
         b = torch.zeros(f.shape[0], self.n_vertices, 3, dtype=dt, device=dev)
         b = b.index_add(1, ei, g).index_add(1, ej, -g)
-        keep = self._keep.to(dev)
-        x = _SparseSolve.apply(b[:, keep], self._lu)  # (B, V-1, 3)
-        p = torch.zeros(f.shape[0], self.n_vertices, 3, dtype=dt, device=dev).index_copy(1, keep, x)
-        centroid = torch.as_tensor(self._rest_centroid, dtype=dt, device=dev)
-        p = p - p.mean(1, keepdim=True) + centroid
+        return b[:, self._keep.to(dev)]
+
+    def vertex_selector(self, idx) -> torch.Tensor:
+        """The (K, V-1) float64 matrix ``M`` with ``decode(f)[:, idx] = M @ b + centroid`` (``b``: the solve's
+        right-hand side at the unpinned vertices): rows ``idx`` of ``L^-1`` (zero for the pinned vertex) minus
+        their mean over all vertices, which the centroid shift subtracts. Built with K + 1 solves of the
+        factorisation and kept for the last few index sets."""
+        idx = np.asarray(_np(idx), dtype=np.int64).reshape(-1)
+        if idx.size and (idx.min() < 0 or idx.max() >= self.n_vertices):
+            raise ValueError(f"vertex indices must lie in [0, {self.n_vertices}); got {idx.min()}..{idx.max()}")
+        key = idx.tobytes()
+        cache = self.__dict__.setdefault("_selectors", {})
+        if key not in cache:
+            n = self.n_vertices - 1
+            pos = np.full(self.n_vertices, -1, dtype=np.int64)  # row of each vertex among the unpinned ones
+            pos[self._keep.numpy()] = np.arange(n)
+            rows = np.zeros((n, len(idx) + 1))
+            free = pos[idx] >= 0
+            rows[pos[idx][free], np.flatnonzero(free)] = 1.0
+            rows[:, -1] = 1.0 / self.n_vertices  # the mean over all vertices (the pinned one is 0)
+            sol = self._lu.solve(rows, trans="T")  # (n, K + 1): columns of L^-T, i.e. rows of L^-1
+            sol[:, :-1][:, ~free] = 0.0
+            cache[key] = torch.from_numpy(np.ascontiguousarray((sol[:, :-1] - sol[:, -1:]).T))
+            while len(cache) > 4:
+                cache.pop(next(iter(cache)))
+        return cache[key]
+
+    def decode_vertices(self, features: torch.Tensor, idx) -> torch.Tensor:
+        """Positions of the vertices ``idx`` only: ``decode(features)[..., idx, :]`` to round-off, differentiable,
+        as one dense product with :meth:`vertex_selector` (no sparse solve, no copy to the CPU: it runs on the
+        features' device). For detectors that read a few vertices of every decoded mesh.
+
+        Args:
+            features: (B, V, 9) or (V, 9) ACAP features.
+            idx: (K,) vertex indices.
+
+        Returns:
+            (B, K, 3) (or (K, 3)) positions, the features' dtype and device.
+        """
+        single = features.ndim == 2
+        f = features[None] if single else features
+        if f.ndim != 3 or f.shape[1:] != (self.n_vertices, FEATURE_DIM):
+            raise ValueError(f"features have shape {tuple(features.shape)}, expected (B, {self.n_vertices}, 9)")
+        m = self.vertex_selector(idx).to(device=f.device, dtype=f.dtype)
+        centroid = torch.as_tensor(self._rest_centroid, dtype=f.dtype, device=f.device)
+        p = torch.einsum("kn,bnc->bkc", m, self._rhs(f)) + centroid
         return p[0] if single else p
 
     def _decode_no_grad(self, f: torch.Tensor) -> torch.Tensor:

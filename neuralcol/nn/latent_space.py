@@ -93,6 +93,15 @@ class LatentSpace(nn.Module):
         feats = self.decode_features(z_all.to(self.box_lo.dtype))
         return self.acap.decode(feats).to(z_all.dtype)
 
+    def decode_vertices(self, z_all: torch.Tensor, idx) -> torch.Tensor:
+        """Z_all (B, D) -> positions of the vertices ``idx`` only (B, K, 3): ``decode(z_all)[:, idx]`` to
+        round-off, differentiable, one dense product on ``z_all``'s device instead of the sparse solve
+        (:meth:`~neuralcol.geometry.acap.ACAP.decode_vertices`)."""
+        if z_all.ndim != 2 or z_all.shape[1] != self.dim:
+            raise ValueError(f"z_all has shape {tuple(z_all.shape)}, expected (B, {self.dim})")
+        feats = self.decode_features(z_all.to(self.box_lo.dtype))
+        return self.acap.decode_vertices(feats, idx).to(z_all.dtype)
+
     # ------------------------------------------------------------------ box
     def sample(self, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
         """n codes from U(Z), (n, D) float32 on the box's device."""
