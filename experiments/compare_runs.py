@@ -20,7 +20,8 @@ import numpy as np
 
 from neuralcol.rundir import RunDir
 
-TIMING = ("seconds", "_s", "ms_per", "_us", "batch_", "threads", "from_cache", "labeled_now", "resumed", "source")
+TIMING = ("seconds", "_s", "ms_per", "_us", "batch_", "threads", "from_cache", "labeled_now", "resumed", "source",
+          "speedup")
 
 
 def _is_timing(path: str) -> bool:

@@ -24,6 +24,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
+from experiments.reporting.speed_accuracy import plot_speed_accuracy
 from neuralcol.geometry.mesh_io import write_meshes
 from neuralcol.handler.contact_repair import repair_from_config
 from neuralcol.handler.resolve import alm_settings
@@ -34,12 +35,14 @@ from neuralcol.pipeline import RunContext
 from neuralcol.rundir import RunDir
 from neuralcol.samples.cache import shared_test_set
 from neuralcol.stages.autoencoder import train_or_load_latent_space
+from neuralcol.stages.cascade import calibrate, cascade_stage, cascade_table, log_cascade
 from neuralcol.stages.data import acap_round_trip, dataset_labels
-from neuralcol.stages.detector import train_detector
+from neuralcol.stages.detector import inference_us, train_detector
 from neuralcol.stages.handler import evaluate_handler, export_handling
 from neuralcol.stages.mesh_detector import mesh_detector_stage
 from neuralcol.stages.model_size import search_model_size, validate_model_size
 from neuralcol.stages.realistic import evaluate_realistic, realistic_set
+from neuralcol.stages.speed import measure_speed_accuracy, speed_accuracy_table
 from neuralcol.stages.validate import validate_run_config
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.resume import RunDirLock, find_interrupted_run
@@ -102,12 +105,21 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
                              cfg.paths.cache_dir, run_dir, logger,
                              round_eval=handling if cfg.handler.eval_every_round and len(z_user) else None)
         t_det = time.perf_counter() - t0
-        # the collision handler with the final detector (handler.n_inputs = 0 skips it)
+        # the certified cascade (issue 29): a band of doubt per target FNR, chosen on its calibration set
+        bands, calib_collides = None, None
+        if cfg.detector.get("cascade") is not None and cfg.detector.cascade.enabled:
+            net, _ = load_detector(rd.detector)
+            bands, calib_collides = calibrate(net, oracle, cfg.detector, ae_report["cache_key"], cfg.paths.cache_dir,
+                                              rd.cascade)
+        # the collision handler with the final detector (handler.n_inputs = 0 skips it); verified exactly, and
+        # through the cascade of each band
         handling_metrics, arrays = None, None
         if len(z_user):
             net, _ = load_detector(rd.detector)
             handling_metrics, arrays = evaluate_handler(net, oracle, z_user, pd_user, settings,
-                                                        int(cfg.handler.batch_size), list(cfg.handler.verify_margins))
+                                                        int(cfg.handler.batch_size), list(cfg.handler.verify_margins),
+                                                        certify=bands if cfg.detector.cascade.get("handler")
+                                                        else None)
         # the detector that reads the mesh (issue 27): decoded D_c + realistic training meshes
         samples_dir = ctx.samples_dir(sample_labeler)
         mesh_net, mesh_report = None, None
@@ -131,6 +143,14 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
             realistic_metrics.update({"from_cache": real_cached, "stage_seconds": time.perf_counter() - t_r})
             np.savez_compressed(rd.realistic_predictions, **real_arrays)
             log_realistic(logger, realistic_metrics, det["rounds"][-1]["dataset_size"])
+        # the cascade's bands on the U(Z) test set and the realistic set, its throughput against the exact labeler
+        cascade_metrics = None
+        if bands is not None:
+            net, _ = load_detector(rd.detector)
+            detector_us = inference_us(net, test.z, batch_sizes=(4096,))["batch_4096"]
+            cascade_metrics = cascade_stage(net, space, sample_labeler, test, bands, calib_collides, cfg.detector,
+                                            detector_us, real_arrays if realistic_metrics is not None else None)
+            log_cascade(logger, cascade_metrics, det["rounds"][-1]["dataset_size"])
     if handling_metrics is not None:
         export_handling(rd.handling, arrays, space, sample_labeler, int(cfg.handler.n_examples),
                         title=f"{cfg.dataset.name}, {cfg.method.name}", pd_sub_before=pd_sub_user)
@@ -160,10 +180,18 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         "handling": handling_metrics,
         "mesh_detector": mesh_report,
         "realistic": realistic_metrics,
+        "cascade": cascade_metrics,
     }
     if size_doc is not None:
         metrics["model_size"] = {k: size_doc[k] for k in ("chosen", "chosen_accuracy", "best_accuracy", "budget",
                                                             "default", "rule")}
+    sa_cfg = cfg.get("speed_accuracy")
+    if sa_cfg is not None and sa_cfg.enabled:  # issue 29: last, as it reads the other stages' metrics (cascade)
+        sa = measure_speed_accuracy(space, load_detector(rd.detector)[0], test, sa_cfg, cfg.labeling, metrics,
+                                    mesh_net, run_dir)
+        metrics["speed_accuracy"] = sa
+        plot_speed_accuracy(sa["points"], rd.speed_accuracy_png, f"{cfg.dataset.name}, {cfg.method.name}, seed "
+                            f"{cfg.seed}: speed against accuracy (torch threads: {sa['threads']})")
     rd.metrics.write_text(json.dumps(metrics, indent=2))
     return metrics
 
@@ -249,6 +277,11 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
                   f"  {m['mean_embedding_diff']:>17.1f}  {1e3 * m['seconds_per_mesh']:>11.1f}")
         print(f"  (detector only: {h['n_nonfinite']} non-finite, {h['n_detector_infeasible']} still predicted "
               f"colliding, {h['n_not_converged']} not converged; verified includes the exact labeling)")
+        for c in h.get("certified") or []:
+            print(f"  verified through the cascade, FNR <= {c['target_fnr']:g}: success {c['success_rate']:.1%}, "
+                  f"resolved {c['resolved_rate']:.1%}; {c['exact_calls']} exact labels of {c['decisions']} decisions "
+                  f"({c['exact_share']:.1%}; full verification {c['exact_calls_verified']}); "
+                  f"{c['trusted_free_colliding']} trusted free but colliding")
     md = metrics.get("mesh_detector")
     if md:
         t = md["test"]
@@ -256,6 +289,10 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
               f"{md['n_realistic']} realistic training meshes, {md['seconds']:.0f} s): U(Z) accuracy "
               f"{t['accuracy']:.4f}, FNR {t['fnr']:.4f}, FPR {t['fpr']:.4f}")
     print_realistic(metrics.get("realistic"))
+    for line in cascade_table(metrics.get("cascade")):
+        print(line)
+    if metrics.get("speed_accuracy"):
+        print("\n".join(speed_accuracy_table(metrics["speed_accuracy"])))
     print(f"results: {run_dir}   (tensorboard --logdir {run_dir / 'tensorboard'})")
 
 

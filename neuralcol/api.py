@@ -7,6 +7,7 @@ resolves self-collisions::
 
     run = neuralcol.load_run("outputs/2024-01-01/12-00-00")
     det = run.detect(vertices)          # (B, V, 3) meshes or (B, D) codes -> Detection (prob, logit, pd, pd_sub)
+    det = run.detect(vertices, certify=0.01)  # the certified cascade: exact labels where the detector is in doubt
     out = run.resolve(vertices)         # Resolved: vertices, codes, exact PD before and after
     run.close()                         # (or `with neuralcol.load_run(...) as run:`) stops the label workers
 
@@ -42,6 +43,9 @@ class Detection(NamedTuple):
     penetrations saturate). pd_sub (B, K): the per-sub-domain estimates ``pd_unit * S_i``. outside_box (B,) bool:
     the code (of a mesh: its encoding) lies outside the box Z the latent detector was trained in, so its answer is
     an extrapolation (``run.detect(mesh, inputs="mesh")`` reads the mesh instead); None where not computed.
+    collides (B,) bool: the verdict: ``logit > 0``, or with ``certify`` the certified cascade's (the network below
+    and above the band, the exact label inside it; docs/cascade.md). exact (B,) bool: with ``certify``, the rows
+    the exact labeler decided (their ``prob`` is then 1.0 or 0.0, the exact answer); None without ``certify``.
     """
 
     prob: torch.Tensor
@@ -49,6 +53,8 @@ class Detection(NamedTuple):
     pd: torch.Tensor
     pd_sub: torch.Tensor
     outside_box: torch.Tensor | None = None
+    collides: torch.Tensor | None = None
+    exact: torch.Tensor | None = None
 
 
 class Resolved(NamedTuple):
@@ -67,6 +73,10 @@ class Resolved(NamedTuple):
     input's (code inputs: from the decoded input code), in mesh units; divide by ``diagonal`` (the rest mesh's
     bounding-box diagonal) for a fraction. decoded (N, V, 3) float32: the handled codes decoded (the latent
     result, in the decoder's frame).
+    With ``certify`` (else None): exact (N,) bool: the verdict on the returned result is the exact labeler's
+    (``pd_after`` is NaN where the detector was trusted instead); free (N,) bool: the certified cascade calls the
+    returned result collision-free (exact PD <= 0, or the detector's logit below the band); exact_share: exact labels
+    per verification decision (the full verification labels every result: 1.0).
     """
 
     vertices: torch.Tensor
@@ -82,6 +92,9 @@ class Resolved(NamedTuple):
     diagonal: float
     decoded: torch.Tensor
     repaired: np.ndarray | None = None
+    exact: np.ndarray | None = None
+    free: np.ndarray | None = None
+    exact_share: float | None = None
 
 
 def _finish_hint(run_dir: Path) -> str:
@@ -185,6 +198,7 @@ class TrainedRun:
         self._pool = None
         self._fast: dict = {}  # compiled copies of the detector by dtype (detect(..., fast=...))
         self._exact = None
+        self._calibration: tuple[np.ndarray, np.ndarray] | None = None  # cascade.npz (detect(..., certify=...))
 
     # ------------------------------------------------------------------ facts
     @property
@@ -249,7 +263,7 @@ class TrainedRun:
             return self.space.decode(self._codes(codes))
 
     def detect(self, vertices_or_codes, batch_size: int = 4096, fast: str | None = None,
-               inputs: str = "latent") -> Detection:
+               inputs: str = "latent", certify: float | None = None) -> Detection:
         """The detector on meshes (B, V, 3) or codes (B, D), in batches of ``batch_size``.
 
         ``inputs``: which detector judges. ``"latent"`` (default): the paper's detector on the code (a mesh is
@@ -267,7 +281,15 @@ class TrainedRun:
         about 0.1 % of labels flip) or ``"bfloat16_checked"`` (bfloat16, with the rows whose logit lies near 0
         recomputed in float32: ~1.9x, no label flipped on SCAPE's test sets). The first call with a ``fast``
         form compiles it (seconds); :class:`~neuralcol.nn.fast_inference.FastDetector` and docs/model_size.md
-        have the measurements."""
+        have the measurements.
+
+        ``certify`` (latent detector only): None, or a target FNR in [0, 1): the certified cascade (docs/cascade.md).
+        The band ``[lo, hi)`` of that target (:meth:`band`, from the run's calibration set) decides which rows the
+        exact labeler judges: logit below ``lo``: free, at or above ``hi``: colliding (the network), inside: the
+        exact label of the **mesh** (a mesh given here is labeled itself, not its round trip; a code is decoded
+        first), through the run's label pool (:meth:`label_pool`). The verdict is then ``collides``, not
+        ``prob > 0.5``; ``exact`` marks the rows labeled, whose ``prob`` becomes 1.0 or 0.0. A row the exact
+        labeler fails on is called colliding (never certified free) and not marked ``exact``."""
         if inputs not in ("auto", "mesh", "latent"):
             raise UserInputError(f"inputs={inputs!r}; use 'auto', 'mesh' or 'latent'")
         x = vertices_or_codes
@@ -276,6 +298,12 @@ class TrainedRun:
             raise UserInputError(f"{self.run_dir}: this run has no mesh_detector.pt (it ran with "
                                  "mesh_detector.enabled=false or before issue 27); use inputs='latent'")
         use_mesh = inputs == "mesh" or (inputs == "auto" and is_mesh and self.mesh_detector is not None)
+        band = None
+        if certify is not None:
+            if use_mesh:
+                raise UserInputError("certify: the cascade's bands are calibrated on the latent detector's logits; "
+                                     "use inputs='latent' with certify")
+            band = self.band(certify)
         z = self.encode(x) if is_mesh else self._codes(x)
         net = self.detector if fast is None else self._fast_detector(fast)
         parts = []
@@ -286,7 +314,9 @@ class TrainedRun:
                                        out.s * self.pd_unit))
         if not parts:
             empty = z.new_zeros(0)
-            return Detection(empty, empty, empty, z.new_zeros(0, self.space.n_parts), z.new_zeros(0, dtype=bool))
+            no = z.new_zeros(0, dtype=bool)
+            return Detection(empty, empty, empty, z.new_zeros(0, self.space.n_parts), no, no,
+                             None if band is None else no)
         det = Detection(*(torch.cat(t) for t in zip(*(p[:4] for p in parts))), self.space.outside_box(z))
         if use_mesh:
             from neuralcol.nn.mesh_detector import mesh_logits
@@ -295,7 +325,93 @@ class TrainedRun:
             logit = torch.as_tensor(mesh_logits(self.mesh_detector, meshes), dtype=torch.float32,
                                     device=det.logit.device)
             det = det._replace(prob=torch.sigmoid(logit), logit=logit)
-        return det
+        if band is None:
+            return det._replace(collides=det.logit > 0)
+        return self._certified(det, band, x if is_mesh else None, z)
+
+    def _certified(self, det: Detection, band, vertices, z: torch.Tensor) -> Detection:
+        """``det`` with the cascade of ``band`` applied: the band's rows labeled exactly (``vertices``: the user's
+        meshes, judged themselves; None: the codes ``z`` decoded)."""
+        from neuralcol.metrics.cascade import apply_band
+
+        failed = np.zeros(len(z), dtype=bool)
+
+        def exact_fn(rows: np.ndarray) -> np.ndarray:
+            if vertices is not None:
+                meshes = self._vertices(vertices)[torch.as_tensor(rows)].numpy()
+            else:
+                meshes = self.decode(z[torch.as_tensor(rows, device=z.device)]).double().cpu().numpy()
+            report = self.label_pool().label_report(meshes)
+            failed[rows] = ~report.ok
+            return np.where(report.ok, report.labels.collides, True)  # a failed label never certifies "free"
+
+        verdict, used = apply_band(det.logit.double().cpu().numpy(), band, exact_fn)
+        used &= ~failed
+        dev = det.logit.device
+        collides = torch.as_tensor(verdict, device=dev)
+        exact = torch.as_tensor(used, device=dev)
+        prob = torch.where(exact, collides.to(det.prob.dtype), det.prob)
+        return det._replace(prob=prob, collides=collides, exact=exact)
+
+    # ------------------------------------------------------------------ the certified cascade
+    def calibration(self) -> tuple[np.ndarray, np.ndarray]:
+        """The run's calibration set for the cascade (``cascade.npz``): the final detector's logits (N,) float64
+        on its codes and their exact labels (N,) bool.
+
+        Raises:
+            UserInputError: the run has none (it predates the cascade, or ran with detector.cascade.enabled=false).
+        """
+        if self._calibration is None:
+            from neuralcol.stages.cascade import load_calibration
+
+            path = RunDir(self.run_dir).cascade
+            if not path.is_file():
+                raise UserInputError(
+                    f"{path}: missing; this run has no calibration set for the certified cascade (it predates issue "
+                    "29 or ran with detector.cascade.enabled=false). Fix: run.calibrate() labels one and writes it "
+                    "into the run directory (once), or run the run's command again with detector.cascade.enabled=true")
+            self._calibration = load_calibration(path)
+        return self._calibration
+
+    def band(self, target_fnr: float, min_accuracy="run"):
+        """The cascade's band of doubt for ``target_fnr`` (:func:`~neuralcol.metrics.cascade.choose_band` on the
+        run's calibration set; any target in [0, 1), not only the run's ``detector.cascade.targets``).
+
+        ``min_accuracy``: ``"run"`` (the run's ``detector.cascade.min_accuracy``, ``"pointwise"`` if unset),
+        ``"detector"``, ``"pointwise"``, a float accuracy floor, or None (docs/cascade.md)."""
+        from neuralcol.metrics.cascade import POINTWISE, choose_band
+
+        if min_accuracy == "run":
+            min_accuracy = OmegaConf.select(self.cfg, "detector.cascade.min_accuracy", default=POINTWISE)
+        logits, collides = self.calibration()
+        try:
+            return choose_band(logits, collides, float(target_fnr), min_accuracy)
+        except (TypeError, ValueError) as e:
+            raise UserInputError(f"certify={target_fnr!r}: {e}") from e
+
+    def calibrate(self, size: int | None = None, seed: int | None = None) -> Path:
+        """Label a calibration set for the cascade and write ``cascade.npz`` into the run directory (for runs made
+        before it existed): ``size`` uniform codes from U(Z) of ``seed`` (None: the run's
+        ``detector.cascade.calibration_size`` / ``calibration_seed``), labeled through the run's label pool and
+        cached beside its test set like the pipeline's. Returns the file's path."""
+        from neuralcol.stages.cascade import calibration_set, save_calibration
+        from neuralcol.stages.realistic import detector_logits
+
+        size = size if size is not None else OmegaConf.select(self.cfg, "detector.cascade.calibration_size")
+        seed = seed if seed is not None else OmegaConf.select(self.cfg, "detector.cascade.calibration_seed")
+        if size is None or seed is None:
+            raise UserInputError("calibrate: this run's config has no detector.cascade; give size= and seed= (the "
+                                 "pipeline's defaults: detector.cascade in conf/detector/cpu.yaml)")
+        if int(seed) == int(self.cfg.detector.test_seed):
+            raise UserInputError(f"calibrate: seed={seed} is the run's test_seed; the calibration set must differ")
+        det_cfg = {"cascade": {"calibration_size": int(size), "calibration_seed": int(seed)}}
+        ctx = self.context()
+        rows, _, _ = calibration_set(ctx.oracle(self.label_pool()), det_cfg, self.metrics["autoencoder"]["cache_key"],
+                                     self.cfg.paths.cache_dir)
+        path = RunDir(self.run_dir).cascade
+        save_calibration(path, detector_logits(self.detector, rows.z), rows.collides, int(seed))
+        self._calibration = None
+        return path
 
     def _fast_detector(self, form: str):
         """The compiled copy of the detector for ``form`` (built on first use, then kept)."""
@@ -377,7 +493,7 @@ class TrainedRun:
     # ------------------------------------------------------------------ handling
     def resolve(self, vertices_or_codes, objective: str = "latent", verify: bool = True, margins=None,
                 subset=None, anchor: str = "median", constraint: str = "latent",
-                repair: bool | None = None) -> Resolved:
+                repair: bool | None = None, certify: float | None = None) -> Resolved:
         """Resolve self-collisions: meshes come back as the user's meshes, corrected; codes as decoded codes.
 
         The augmented-Lagrangian handler (docs/handler.md) moves each input's latent code to the nearest code
@@ -404,6 +520,13 @@ class TrainedRun:
             repair: mesh inputs with ``verify``: a returned mesh the exact labeler still finds self-penetrating
                 after the margins gets the contact repair (its intersecting triangles pushed apart, our addition;
                 docs/real_meshes.md); None: the run's ``handler.repair.enabled``.
+            certify: None, or a target FNR: verification through the certified cascade (needs ``verify``;
+                docs/cascade.md): a handled result is labeled exactly only where the latent detector's logit on its
+                code lies in the run's band for that target (:meth:`band`); below it the detector is trusted (free,
+                kept, ``pd_after`` NaN), at or above it the result counts as still colliding (handled again with the
+                next margin, then, for meshes, the contact repair). ``exact``, ``free`` and ``exact_share`` of the
+                result say which verdicts were exact. The inputs' ``pd_input`` / ``pd_before`` are measured as
+                without it.
 
         Returns:
             :class:`Resolved`.
@@ -411,7 +534,10 @@ class TrainedRun:
         from neuralcol.handler.objectives import CartesianObjective, LatentObjective
         from neuralcol.handler.resolve import (
             ANCHORS,
+            CertifiedLabel,
             alm_settings,
+            certified_outcome,
+            detector_logits,
             displacement_stats,
             handle_codes,
             resolve_meshes,
@@ -426,6 +552,15 @@ class TrainedRun:
             raise UserInputError(f"constraint={constraint!r}; use 'latent' or 'mesh'")
         if constraint == "mesh" and self.mesh_detector is None:
             raise UserInputError(f"{self.run_dir}: constraint='mesh' needs the run's mesh_detector.pt")
+        band = None
+        if certify is not None:
+            if not verify:
+                raise UserInputError("certify decides which handled results the exact labeler verifies; it needs "
+                                     "verify=True")
+            if constraint == "mesh":
+                raise UserInputError("certify: the cascade's bands are calibrated on the latent detector's logits; "
+                                     "use constraint='latent' with certify")
+            band = self.band(certify)
         x = vertices_or_codes
         v_user = self._vertices(x) if self._is_vertices(x) else None
         z_user = (self.encode(v_user) if v_user is not None else self._codes(x)).float().cpu()
@@ -456,7 +591,7 @@ class TrainedRun:
             res = resolve_meshes(self.detector, self.space, v_user, self._pd, settings, margins, batch,
                                  objective=target, anchor=anchor, z_user=z_user,
                                  mesh_net=self.mesh_detector if constraint == "mesh" else None,
-                                 repair=rep, labeler=self._exact if rep is not None else None)
+                                 repair=rep, labeler=self._exact if rep is not None else None, certify=band)
             used_margins = np.append(used_margins, np.nan)
             moved = displacement_stats(v_user.numpy(), res.vertices, diag)
             return Resolved(vertices=torch.as_tensor(res.vertices, dtype=torch.float64, device=self.device),
@@ -465,7 +600,7 @@ class TrainedRun:
                             margin=used_margins[res.stage], displacement_mean=moved["mean"],
                             displacement_max=moved["max"], displacement_median=moved["median"], diagonal=diag,
                             decoded=torch.as_tensor(res.decoded, dtype=torch.float32, device=self.device),
-                            repaired=res.repaired)
+                            repaired=res.repaired, exact=res.exact, free=res.free, exact_share=res.exact_share)
 
         def handle(rows: np.ndarray, margin: float):
             idx_map = torch.as_tensor(rows, device=self.device)
@@ -476,12 +611,18 @@ class TrainedRun:
         def label(z: torch.Tensor, rows=None) -> np.ndarray:
             return self._pd(self.decode(z))
 
+        decide = label if band is None else \
+            CertifiedLabel(band, lambda z: detector_logits(self.detector, z), label)
         res = handle(np.arange(len(z_user)), settings.margin)
         pd_after = np.full(len(z_user), np.nan)
-        pd_after[res.finite.numpy()] = label(res.z[res.finite])
+        pd_after[res.finite.numpy()] = decide(res.z[res.finite])
         z, stage = res.z.float(), np.zeros(len(z_user), dtype=np.int64)
         if margins:
-            z, pd_after, stage, _ = verified_escalation(handle, label, z_user, z, pd_after, margins)
+            z, pd_after, stage, _ = verified_escalation(handle, decide, z_user, z, pd_after, margins)
+        exact = free = share = None
+        if band is not None:
+            pd_after, exact, free = certified_outcome(pd_after)
+            share = decide.exact_share
         with torch.no_grad():  # (a failed result's code may be non-finite: no input check here)
             verts = self.space.decode(z.to(self.device))
             before = self.space.decode(z_user.to(self.device))
@@ -490,4 +631,5 @@ class TrainedRun:
         return Resolved(vertices=verts, codes=z.to(self.device), codes_before=z_user.to(self.device),
                         pd_input=nan, pd_before=label(z_user), pd_after=pd_after, margin=used_margins[stage],
                         displacement_mean=moved["mean"], displacement_max=moved["max"],
-                        displacement_median=moved["median"], diagonal=diag, decoded=verts)
+                        displacement_median=moved["median"], diagonal=diag, decoded=verts, exact=exact, free=free,
+                        exact_share=share)

@@ -12,7 +12,8 @@ Run directory (one run)::
     detector_rounds.json        round records (rewritten each round; ``finished`` when done)
     dc.h5                       D_c, the labeled training samples  checkpoints/detector.ckpt  resume state
     test_predictions.npz        the detector on the U(Z) test set  realistic_predictions.npz  on the realistic set
-    handling/  examples/  round_examples/  subdomains.png  tensorboard/<stage>/
+    cascade.npz                 the detector's logits on the cascade's calibration set and their exact labels
+    handling/  examples/  round_examples/  subdomains.png  speed_accuracy.png  tensorboard/<stage>/
 
 Cache directory (shared by runs)::
 
@@ -51,10 +52,12 @@ class RunDir:
     checkpoint = _File("checkpoints", "detector.ckpt")
     test_predictions = _File("test_predictions.npz")
     realistic_predictions = _File("realistic_predictions.npz")
+    cascade = _File("cascade.npz")  # calibration logits + labels of the certified cascade (neuralcol.stages.cascade)
     handling = _File("handling")
     examples = _File("examples")
     round_examples = _File("round_examples")
     subdomains_png = _File("subdomains.png")
+    speed_accuracy_png = _File("speed_accuracy.png")  # throughput against accuracy and FNR (neuralcol.stages.speed)
     tensorboard = _File("tensorboard")
 
     def __init__(self, path: str | os.PathLike):

@@ -28,7 +28,7 @@ def run_dir(tmp_path_factory) -> Path:
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose(config_name="config", overrides=[
             "dataset=proc_hand", "dataset.source.n_poses=24", f"paths.cache_dir={tmp}/cache", "n_example_meshes=0",
-            "autoencoder=tiny", "detector=tiny", "realistic=tiny",
+            "autoencoder=tiny", "detector=tiny", "realistic=tiny", "speed_accuracy.enabled=false",
             "mesh_detector=tiny", "handler.n_inputs=0", "labeling.pool.workers=0",
             "labeling.pool.progress=false"])
     run(cfg, tmp / "run")

@@ -54,6 +54,7 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
 
     cfg = _compose(["dataset=scape", f"paths.data_dir={scape_dir.parent}", f"paths.cache_dir={tmp_path}/cache",
                     "n_example_meshes=2", "autoencoder=tiny", "detector=tiny", "realistic=tiny", "mesh_detector=tiny",
+                    "speed_accuracy=tiny",
                     "labeling.pool.workers=0",
                     "labeling.pool.progress=false"])
     metrics = run(cfg, tmp_path / "run")
@@ -165,7 +166,7 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     env = {k: v for k, v in __import__("os").environ.items() if k not in ("HYDRA_FULL_ERROR",)}
     proc = subprocess.run(
         [sys.executable, "-m", "experiments.run", "-m", "dataset=scape", "autoencoder=tiny", "detector=tiny",
-         "realistic=tiny",
+         "realistic=tiny", "speed_accuracy=tiny",
          "mesh_detector=tiny", "method=supv_bd,active", "seed=0,1", "hydra/launcher=parallel", "handler.n_inputs=8",
          "handler.eval_every_round=true", "handler.verify_margins=[4.0]", "n_example_meshes=0",
          "labeling.pool.workers=0", "labeling.pool.progress=false", f"paths.data_dir={scape_dir.parent}",

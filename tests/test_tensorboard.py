@@ -29,7 +29,7 @@ def test_one_tensorboard_run_per_stage(tmp_path):
     with initialize_config_dir(config_dir=CONF, version_base="1.3"):
         cfg = compose(config_name="config", overrides=[
             "dataset=proc_hand", "dataset.source.n_poses=24", f"paths.cache_dir={tmp_path}/cache", "autoencoder=tiny",
-            "detector=tiny", "realistic=tiny",
+            "detector=tiny", "realistic=tiny", "speed_accuracy.enabled=false",
             "mesh_detector=tiny", "method=supv", "labeling.pool.workers=0", "labeling.pool.progress=false",
             "handler.n_inputs=4", "handler.verify_margins=[]", "n_example_meshes=0",
             "detector.tensorboard_examples=2"])

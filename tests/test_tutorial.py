@@ -35,7 +35,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 TUTORIAL = ROOT / "docs" / "tutorial.md"
 RUNNABLE, SHOWN = ("bash", "python"), ("text",)
-TINY = ("autoencoder=tiny detector=tiny realistic=tiny mesh_detector=tiny "
+TINY = ("autoencoder=tiny detector=tiny realistic=tiny mesh_detector=tiny speed_accuracy=tiny "
         "labeling.pool.workers=0 labeling.pool.progress=false "
         "handler.n_inputs=4 "
         "handler.verify_margins=[] n_example_meshes=0 detector.tensorboard_examples=2 autoencoder.box_margin=0.5")

@@ -21,6 +21,7 @@ from experiments.reporting.aggregate import (
 )
 from experiments.reporting.discover import dataset, find_runs, load_bench, load_chosen
 from experiments.reporting.markdown import markdown
+from experiments.reporting.speed_accuracy import write_speed_accuracy
 from experiments.reporting.tradeoff_tables import tradeoff_markdown
 from neuralcol.metrics.breakdown import PD_BIN_NAMES
 
@@ -86,10 +87,14 @@ def write_report(dirs: list[Path], out: Path | None = None, bench_path: Path | N
     text = markdown(runs, agg, rows, bench)
     trade_lines, notes, trade = write_tradeoffs(runs, dirs, out, label_prices(runs))
     text += "\n" + "\n".join(trade_lines)
+    speed_lines, speed_charts, speed = write_speed_accuracy(runs, out)  # runs with metrics["speed_accuracy"]
+    if speed_lines:
+        text += "\n" + "\n".join(speed_lines)
     (out / "report.md").write_text(text)
     _write_table3(rows, out / "table3.csv")
     plain = {ds: {m: {str(s): dict(c) for s, c in sizes.items()} for m, sizes in ms.items()} for ds, ms in agg.items()}
-    (out / "report.json").write_text(json.dumps({"table3": rows, "rounds": plain, **trade}, indent=2))
+    (out / "report.json").write_text(json.dumps({"table3": rows, "rounds": plain, **trade, **speed},
+                                                    indent=2))
     charts = ["accuracy.png", "fnr.png", "pareto.png", "cost.png", "failures.png"]
     plots.plot(agg, "accuracy", out / "accuracy.png")
     plots.plot(agg, "fnr", out / "fnr.png")
@@ -98,6 +103,7 @@ def write_report(dirs: list[Path], out: Path | None = None, bench_path: Path | N
     plots.plot_speed(agg, bench, out / "speed.png")
     plots.plot_stability(agg, runs, out / "stability.png")
     charts += ["speed.png", "stability.png"]
+    charts += speed_charts
     proj = projection_runs(runs)
     if proj:
         from experiments.diagnose import plot as plot_diagnosis

@@ -106,6 +106,67 @@ def verified_escalation(handle: Callable[[np.ndarray, float], Resolution],
     return z, pd, stage, handled
 
 
+def detector_logits(net: torch.nn.Module, z: torch.Tensor, batch: int = 4096) -> np.ndarray:
+    """(n,) float64 logits of the latent detector on codes (eval mode, no gradient; the net left as it was)."""
+    was = net.training
+    net.eval()
+    dev = next(net.parameters()).device
+    z = torch.as_tensor(z).detach().float()
+    with torch.no_grad():
+        out = [net(c.to(dev)).logit.cpu() for c in z.split(batch)]
+    net.train(was)
+    return torch.cat(out).double().numpy() if out else np.zeros(0)
+
+
+class CertifiedLabel:
+    """The verdict on handled codes through the certified cascade (issue 29; :mod:`neuralcol.metrics.cascade`):
+    the exact labeler only where the detector is in doubt.
+
+    Called as ``(codes (n, D), rows (n,) or None) -> (n,)`` "PD for deciding", the ``label`` of
+    :func:`verified_escalation`: the exact PD (``label(codes, rows)`` on the subset) where the detector's logit lies
+    in the band ``[lo, hi)``; ``-inf`` where it lies below ``lo`` (the detector is trusted: free, no exact call);
+    ``+inf`` where it lies at or above ``hi`` (trusted: still colliding, so escalated; a non-finite logit too).
+    :func:`verified_escalation` then handles again exactly the results judged colliding, and a ``-inf`` result
+    replaces any other. ``decisions`` and ``exact_calls`` count the codes judged and the ones labeled exactly.
+
+    Args:
+        band: :class:`~neuralcol.metrics.cascade.Band`.
+        logits: ``codes (n, D) -> (n,)`` the detector's logits (e.g. :func:`detector_logits` of the detector).
+        label: ``(codes (m, D), rows (m,) or None) -> exact PD (m,)``.
+    """
+
+    def __init__(self, band, logits: Callable[[torch.Tensor], np.ndarray], label: Callable):
+        self.band, self.logits, self.label = band, logits, label
+        self.decisions, self.exact_calls = 0, 0
+
+    def __call__(self, z: torch.Tensor, rows=None) -> np.ndarray:
+        from neuralcol.metrics.cascade import band_mask
+
+        logit = np.asarray(self.logits(z), np.float64)
+        out = np.where(logit < self.band.lo, -np.inf, np.inf)  # (NaN logits: +inf, never trusted free)
+        inside = np.flatnonzero(band_mask(logit, self.band))
+        self.decisions += len(logit)
+        self.exact_calls += len(inside)
+        if len(inside):
+            sub = None if rows is None else np.asarray(rows)[inside]
+            out[inside] = self.label(z[torch.as_tensor(inside)], sub)
+        return out
+
+    @property
+    def exact_share(self) -> float:
+        """Exact calls per decision (NaN before any)."""
+        return self.exact_calls / self.decisions if self.decisions else float("nan")
+
+
+def certified_outcome(pd_decided: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """From :class:`CertifiedLabel`'s decisions (after :func:`verified_escalation`): (pd (n,): the exact PD where the
+    exact labeler judged, NaN where the detector was trusted or nothing was labeled; exact (n,) bool: the verdict
+    is the exact labeler's; free (n,) bool: the cascade calls the result collision-free)."""
+    d = np.asarray(pd_decided, np.float64)
+    exact = np.isfinite(d)
+    return np.where(exact, d, np.nan), exact, d <= 0
+
+
 def transfer_displacement(v_user: torch.Tensor, decoded_before: torch.Tensor, decoded_after: torch.Tensor,
                           anchor: str = "median") -> torch.Tensor:
     """The user's meshes moved by the correction the handler's decoded codes imply (issue 27).
@@ -154,6 +215,9 @@ class MeshResolution(NamedTuple):
     stage (N,) int: which margin's result was kept (0: the first; ``len(margins) + 1``: the contact repair's).
     feasible (N,) bool: the detector calls the first result free. pd_after_escalation (N,): after the margins,
     before the repair. repaired (N,) bool: the contact repair's mesh was kept.
+    With ``certify`` (else None): exact (N,) bool: the verdict on the returned mesh is the exact labeler's (the
+    PDs are NaN where the detector was trusted instead); free (N,) bool: the cascade calls it collision-free;
+    exact_share: exact labels per verification decision.
     """
 
     vertices: np.ndarray
@@ -167,6 +231,9 @@ class MeshResolution(NamedTuple):
     feasible: np.ndarray
     pd_after_escalation: np.ndarray
     repaired: np.ndarray
+    exact: np.ndarray | None = None
+    free: np.ndarray | None = None
+    exact_share: float | None = None
 
 
 def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
@@ -174,7 +241,7 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
                    batch_size: int = 256, objective=None, anchor: str = "median",
                    z_user: torch.Tensor | None = None, pd_input: np.ndarray | None = None,
                    mesh_net: torch.nn.Module | None = None, repair=None, labeler=None,
-                   progress: bool = False) -> MeshResolution:
+                   progress: bool = False, certify=None) -> MeshResolution:
     """Resolve self-collisions of the user's meshes and return the user's meshes, corrected (issue 27).
 
     The inputs are encoded; the augmented-Lagrangian handler moves each code to the nearest one the detector
@@ -203,9 +270,15 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
             ``pd_after_escalation`` still describe the neural path); needs ``labeler`` (``intersecting_pairs``,
             ``eps``).
         progress: a progress bar over the repaired meshes.
+        certify: a :class:`~neuralcol.metrics.cascade.Band` or None: verify through the certified cascade
+            (:class:`CertifiedLabel`): a handled result is labeled exactly only where the latent detector's logit
+            on its code lies in the band; below it the detector is trusted (free, kept), at or above it the result
+            counts as still colliding (handled again with the next margin, then repaired). Not with ``mesh_net``.
     """
     if repair is not None and labeler is None:
         raise ValueError("resolve_meshes: repair needs the exact labeler (labeler=...)")
+    if certify is not None and mesh_net is not None:
+        raise ValueError("resolve_meshes: certify is calibrated on the latent detector's logit, not mesh_net's")
     v_user = torch.as_tensor(v_user).detach().to("cpu", torch.float64)
     z_user = (space.encode(v_user) if z_user is None else z_user).detach().float().cpu()
     dev = space.box_lo.device
@@ -245,15 +318,16 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
         return label(returned(z, rows).numpy())
 
     n = len(v_user)
+    decide = label_codes if certify is None else CertifiedLabel(certify, lambda z: detector_logits(net, z), label_codes)
     pd_in = label(v_user.numpy()) if pd_input is None else np.asarray(pd_input, np.float64)
     res = handle(np.arange(n), settings.margin)
     finite = res.finite.numpy()
     pd_after = np.full(n, np.nan)
     if finite.any():
-        pd_after[finite] = label_codes(res.z[res.finite], np.flatnonzero(finite))
+        pd_after[finite] = decide(res.z[res.finite], np.flatnonzero(finite))
     z, pd_v, stage = res.z.float(), pd_after.copy(), np.zeros(n, dtype=np.int64)
     if len(margins):
-        z, pd_v, stage, _ = verified_escalation(handle, label_codes, z_user, z, pd_after, list(margins))
+        z, pd_v, stage, _ = verified_escalation(handle, decide, z_user, z, pd_after, list(margins))
     ok = torch.isfinite(z).all(-1)
     decoded = torch.full((n, *v_user.shape[1:]), float("nan"), dtype=torch.float64)
     out = torch.full_like(decoded, float("nan"))
@@ -287,5 +361,10 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
             free = np.nan_to_num(pd_fix, nan=np.inf) <= 0
             rows = first[free]
             out[rows], pd_v[rows], stage[rows], repaired[rows] = fixed[free], pd_fix[free], len(margins) + 1, True
-    return MeshResolution(out, decoded.numpy(), z, z_user, pd_in, pd_after, pd_v, stage,
-                          res.feasible.numpy(), pd_esc, repaired)
+    if certify is None:
+        return MeshResolution(out, decoded.numpy(), z, z_user, pd_in, pd_after, pd_v, stage,
+                              res.feasible.numpy(), pd_esc, repaired)
+    pd_v, exact, free = certified_outcome(pd_v)
+    return MeshResolution(out, decoded.numpy(), z, z_user, pd_in, certified_outcome(pd_after)[0], pd_v, stage,
+                          res.feasible.numpy(), certified_outcome(pd_esc)[0], repaired, exact, free,
+                          decide.exact_share)

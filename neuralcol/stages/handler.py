@@ -24,7 +24,13 @@ import numpy as np
 import torch
 
 from neuralcol.handler.alm import ALMSettings, Resolution
-from neuralcol.handler.resolve import handle_codes, verified_escalation
+from neuralcol.handler.resolve import (
+    CertifiedLabel,
+    certified_outcome,
+    detector_logits,
+    handle_codes,
+    verified_escalation,
+)
 from neuralcol.samples.oracle import LatentOracle
 
 
@@ -55,13 +61,23 @@ def pd_reduction_metrics(z_user: np.ndarray, z: np.ndarray, pd_before: np.ndarra
 
 
 def evaluate_handler(net: torch.nn.Module, oracle: LatentOracle, z_user: torch.Tensor, pd_before: np.ndarray,
-                     settings: ALMSettings, batch_size: int = 256, verify_margins=()) -> tuple[dict, dict]:
+                     settings: ALMSettings, batch_size: int = 256, verify_margins=(),
+                     certify: dict | None = None) -> tuple[dict, dict]:
     """Handle ``z_user`` (all self-penetrating, PD ``pd_before`` > 0) and label the results exactly.
 
     The top-level metrics are the paper's protocol (the detector alone guides the handler). With
     ``verify_margins`` the inputs still self-penetrating are handled again with larger margins
     (:func:`verified_escalation`) and ``metrics["verified"]`` holds the same measures after that, with the
     wall time per input including the exact labeling.
+
+    ``certify`` (``{target FNR: Band}``, with ``verify_margins``): the same verification through the certified
+    cascade of each band (:class:`~neuralcol.handler.resolve.CertifiedLabel`): a handled result is labeled exactly
+    only where the detector's logit on it lies in the band, the others trust the detector.
+    ``metrics["certified"]`` holds one entry per target: the handling measures (on the exact PD of every final
+    result, measured afterwards for the evaluation; the cascade did not see it outside the band), ``exact_share``
+    (exact labels per verification decision; the first handling's results, whose exact PD is already known, are
+    read instead of labeled again: the same answer), ``trusted_free_colliding`` (results the cascade called free
+    that self-penetrate) and ``exact_calls_verified`` (the exact labels of the full verification, for comparison).
 
     Returns:
         (metrics dict, per-input arrays: z, pd_before, pd_after, reduction, embedding_diff, success, ...)
@@ -77,11 +93,12 @@ def evaluate_handler(net: torch.nn.Module, oracle: LatentOracle, z_user: torch.T
         return handle_codes(net, z_user[torch.as_tensor(rows)], space.box_lo, space.box_hi,
                             replace(settings, margin=margin), batch_size=batch_size)
 
-    label_failures = [0]
+    label_failures, labeled = [0], [0]
 
     def label(z: torch.Tensor, rows=None) -> np.ndarray:  # NaN PD where the labeler failed (reported, counted)
         lab = oracle(z, desc="labeling handled codes")
         label_failures[0] += int(getattr(lab, "n_failed", 0))
+        labeled[0] += len(z)
         return lab.pd
 
     t0 = time.perf_counter()
@@ -110,13 +127,47 @@ def evaluate_handler(net: torch.nn.Module, oracle: LatentOracle, z_user: torch.T
         t_v = time.perf_counter()
         z_v, pd_v, stage, handled = verified_escalation(handle, label, z_user, res.z, pd_after, margins)
         seconds_v = seconds + label_seconds + time.perf_counter() - t_v
+        exact_verified = labeled[0]  # exact labels of the full verification (first handling included)
         m_v, d_v = pd_reduction_metrics(z_user.numpy(), z_v.numpy(), pd_before, pd_v)
         metrics["verified"] = {**m_v, "margins": margins, "handled_per_stage": handled,
                                "kept_per_stage": np.bincount(stage, minlength=len(margins) + 1).tolist(),
                                "seconds_per_mesh": seconds_v / max(n, 1)}
         arrays.update({"z_verified": z_v.numpy(), "pd_after_verified": pd_v, "stage_verified": stage,
                        **{f"{k}_verified": v for k, v in d_v.items()}})
+        if certify:
+            metrics["certified"] = [
+                certified_handling(net, handle, label, z_user, res, pd_before, pd_after, margins, float(t), band,
+                                   exact_calls_verified=exact_verified)
+                for t, band in certify.items()]
     return metrics, arrays
+
+
+def certified_handling(net, handle, label, z_user: torch.Tensor, res: Resolution, pd_before: np.ndarray,
+                       pd_after: np.ndarray, margins: list[float], target_fnr: float, band,
+                       exact_calls_verified: int | None = None) -> dict:
+    """One ``metrics["certified"]`` entry of :func:`evaluate_handler`: margin escalation decided by the certified
+    cascade of ``band``, its results measured exactly afterwards."""
+    finite = res.finite.numpy()
+    decide = CertifiedLabel(band, lambda z: detector_logits(net, z), lambda z, rows: pd_after[rows])
+    first = np.full(len(pd_after), np.nan)
+    if finite.any():  # the first handling's exact PD is known: read, not labeled again
+        first[finite] = decide(res.z[res.finite], np.flatnonzero(finite))
+    decide.label = label
+    z_c, pd_c, stage, handled = verified_escalation(handle, decide, z_user, res.z, first, margins)
+    pd_meas, exact, free = certified_outcome(pd_c)
+    trusted = np.flatnonzero(np.isinf(pd_c))
+    kept_first = trusted[stage[trusted] == 0]
+    pd_meas[kept_first] = pd_after[kept_first]
+    later = trusted[stage[trusted] > 0]
+    if len(later):  # measured for the evaluation only (not an exact call of the cascade)
+        pd_meas[later] = label(z_c[torch.as_tensor(later)], later)
+    m, _ = pd_reduction_metrics(z_user.numpy(), z_c.numpy(), pd_before, pd_meas)
+    return {"target_fnr": target_fnr, "lo": float(band.lo), "hi": float(band.hi), **m,
+            "exact_share": decide.exact_share, "exact_calls": decide.exact_calls, "decisions": decide.decisions,
+            "exact_calls_verified": exact_calls_verified,
+            "trusted_free_colliding": int((np.isneginf(pd_c) & (np.nan_to_num(pd_meas, nan=0.0) > 0)).sum()),
+            "handled_per_stage": handled,
+            "kept_per_stage": np.bincount(stage, minlength=len(margins) + 1).tolist()}
 
 
 def plot_reduction_vs_difference(arrays: dict, path: Path, title: str = "") -> Path:

@@ -114,6 +114,12 @@ def config_problems(cfg: DictConfig) -> list[str]:
             repair_settings(OmegaConf.to_container(cfg.handler.repair, resolve=True))
         except (TypeError, ValueError) as e:
             problems.append(f"handler.repair: {e}")
+    from neuralcol.stages.speed import speed_accuracy_problems
+
+    problems += speed_accuracy_problems(_get(cfg, "speed_accuracy"))  # None (no such group): nothing to check
+    from neuralcol.stages.cascade import cascade_problems
+
+    problems += cascade_problems(cfg)  # detector.cascade (absent: nothing to check)
     return problems
 
 
