@@ -385,7 +385,8 @@ class TrainedRun:
             min_accuracy = OmegaConf.select(self.cfg, "detector.cascade.min_accuracy", default=POINTWISE)
         logits, collides = self.calibration()
         try:
-            return choose_band(logits, collides, float(target_fnr), min_accuracy)
+            return choose_band(logits, collides, float(target_fnr), min_accuracy,
+                               OmegaConf.select(self.cfg, "detector.cascade.confidence", default=None))
         except (TypeError, ValueError) as e:
             raise UserInputError(f"certify={target_fnr!r}: {e}") from e
 

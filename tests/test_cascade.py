@@ -382,8 +382,9 @@ def test_band_from_the_runs_calibration_set_and_its_errors(tube_run, tmp_path):
     save_calibration(path, logit, y, 1000033)
     run._calibration = None
     for target in (0.01, 0.13):  # any target, not only the configured ones
-        assert run.band(target) == choose_band(logit.astype(np.float64), y, target, "pointwise")  # the default
-        assert run.band(target, "detector") == choose_band(logit.astype(np.float64), y, target, "detector")
+        # the run's settings: the pointwise floor, the FNR certified at confidence 0.9 (conf/detector/cpu.yaml)
+        assert run.band(target) == choose_band(logit.astype(np.float64), y, target, "pointwise", 0.9)
+        assert run.band(target, "detector") == choose_band(logit.astype(np.float64), y, target, "detector", 0.9)
     assert run.band(0.05, None).calib_exact_share == 0
     with pytest.raises(UserInputError, match="certify=1.5: target_fnr"):
         run.detect(run.space.sample(2), certify=1.5)
@@ -480,3 +481,29 @@ def test_cascade_table_from_saved_arrays(tmp_path, capsys):
     assert "| pointwise | 0.02 |" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         main([str(tmp_path / "nothing")])
+
+
+def test_allowed_misses_clopper_pearson_and_coverage():
+    """The confidence level certifies the FNR on fresh samples: over many calibration draws, the true FNR of the
+    chosen lo exceeds the target in at most about 1 - confidence of them (without it, in about half)."""
+    from scipy.stats import beta, norm
+
+    from neuralcol.metrics.cascade import allowed_misses
+
+    assert allowed_misses(320, 0.01) == 3
+    assert allowed_misses(320, 0.01, 0.9) == 0  # U(0) = 0.0072 <= 0.01 < U(1) = 0.0121
+    assert beta.ppf(0.9, 1, 320) <= 0.01 < beta.ppf(0.9, 2, 319)
+    assert allowed_misses(100, 0.01, 0.9) == 0  # too few colliding samples to certify: the strictest lo
+    assert allowed_misses(5000, 0.05, 0.9) == max(k for k in range(5000) if beta.ppf(0.9, k + 1, 5000 - k) <= 0.05)
+    with pytest.raises(ValueError, match="confidence"):
+        allowed_misses(10, 0.1, 1.0)
+    rng = np.random.default_rng(0)
+    over = {None: 0, 0.9: 0}
+    draws = 300
+    for _ in range(draws):
+        y = rng.random(2000) < 0.3
+        logit = rng.normal(size=2000) + np.where(y, 1.5, -1.5)
+        for conf in over:
+            band = choose_band(logit, y, 0.02, None, conf)
+            over[conf] += norm.cdf(band.lo - 1.5) > 0.02  # the true FNR of lo for colliding logits ~ N(1.5, 1)
+    assert over[0.9] / draws <= 0.15 and over[None] / draws >= 0.3

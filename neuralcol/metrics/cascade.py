@@ -103,7 +103,25 @@ def error_budget(logits, collides, min_accuracy=DETECTOR) -> int | None:
     return int(math.floor((1.0 - a) * len(y) + 1e-9))
 
 
-def choose_band(logits, collides, target_fnr: float, min_accuracy=DETECTOR) -> Band:
+def allowed_misses(n_pos: int, target_fnr: float, confidence: float | None = None) -> int:
+    """Colliding calibration samples allowed below ``lo``. ``confidence`` None: ``floor(target_fnr * n_pos)`` (the
+    calibration FNR <= target). A confidence ``c`` in (0, 1): the largest ``k`` whose one-sided Clopper-Pearson upper
+    bound on the FNR at level ``c`` is <= target (``beta.ppf(c, k + 1, n_pos - k)``), so that a fresh sample's FNR
+    exceeds the target with probability about ``1 - c`` at most; 0 when even ``k = 0`` cannot certify it (the
+    calibration set has too few colliding samples: about ``ln(1 / (1 - c)) / target`` are needed)."""
+    if confidence is None:
+        return int(math.floor(float(target_fnr) * n_pos + 1e-9))
+    c = float(confidence)
+    if not 0.0 < c < 1.0:
+        raise ValueError(f"confidence={confidence!r}; a confidence level lies in (0, 1)")
+    from scipy.stats import beta
+
+    k = np.arange(n_pos)
+    ok = beta.ppf(c, k + 1, n_pos - k) <= float(target_fnr)
+    return int(k[ok][-1]) if ok.any() else 0
+
+
+def choose_band(logits, collides, target_fnr: float, min_accuracy=DETECTOR, confidence: float | None = None) -> Band:
     """The band ``[lo, hi)`` reaching ``target_fnr`` on the calibration set with the fewest exact calls.
 
     Args:
@@ -113,6 +131,8 @@ def choose_band(logits, collides, target_fnr: float, min_accuracy=DETECTOR) -> B
         min_accuracy: ``"detector"`` (the cascade is at least as accurate as the detector alone at logit 0 on the
             calibration set), ``"pointwise"`` (on every sample: the band covers the detector's doubtful side of 0),
             a float accuracy floor in [0, 1], or None (no floor: ``hi = lo``, no exact call).
+        confidence: None (the calibration FNR <= target) or a level in (0, 1) (:func:`allowed_misses`: the FNR
+            on fresh samples <= target with about that probability).
 
     Returns:
         :class:`Band` (the rule: module docstring).
@@ -129,7 +149,7 @@ def choose_band(logits, collides, target_fnr: float, min_accuracy=DETECTOR) -> B
         raise ValueError(f"choose_band: none of the {n} calibration samples collides, so the FNR is undefined; "
                          "label a larger calibration set (detector.cascade.calibration_size)")
     budget = error_budget(logit, y, min_accuracy)
-    k = int(math.floor(t_fnr * n_pos + 1e-9))  # colliding samples allowed below lo
+    k = allowed_misses(n_pos, t_fnr, confidence)  # colliding samples allowed below lo
     cand = np.append(np.unique(logit), np.inf)  # thresholds, ascending
     below = np.searchsorted(np.sort(logit), cand, side="left")  # rows with l < t
     fn = np.searchsorted(np.sort(logit[y]), cand, side="left")  # colliding rows with l < t

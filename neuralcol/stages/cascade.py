@@ -72,6 +72,10 @@ def cascade_problems(cfg) -> list[str]:
     elif seed == det.get("test_seed"):
         problems.append(f"{key}.calibration_seed={seed!r}: must differ from detector.test_seed (the calibration "
                         "set must not be the test set)")
+    conf = c.get("confidence")
+    if conf is not None and not (isinstance(conf, float) and 0.0 < conf < 1.0):
+        problems.append(f"{key}.confidence={conf!r}: a confidence level in (0, 1), e.g. 0.9, or null (the calibration "
+                        "FNR alone)")
     if not isinstance(c.get("handler", False), bool):
         problems.append(f"{key}.handler={c.get('handler')!r}: must be true or false")
     m = c.get("min_accuracy")
@@ -132,9 +136,10 @@ def exact_ms_per_sample(space, labeler, z: np.ndarray) -> float:
     return 1e3 * seconds / len(z)
 
 
-def choose_bands(logits: np.ndarray, collides: np.ndarray, targets, min_accuracy=DETECTOR) -> dict[float, Band]:
+def choose_bands(logits: np.ndarray, collides: np.ndarray, targets, min_accuracy=DETECTOR,
+                 confidence: float | None = None) -> dict[float, Band]:
     """``{target: band}`` for each target FNR (:func:`~neuralcol.metrics.cascade.choose_band`)."""
-    return {float(t): choose_band(logits, collides, float(t), min_accuracy) for t in targets}
+    return {float(t): choose_band(logits, collides, float(t), min_accuracy, confidence) for t in targets}
 
 
 def cascade_report(bands: dict[float, Band], calib_collides: np.ndarray, calib_seed: int,
@@ -183,7 +188,7 @@ def calibrate(net: torch.nn.Module, oracle: LatentOracle, det_cfg, latent_key: s
         print(f"[cascade] none of the {len(collides)} calibration samples collides: no band (the FNR is undefined); "
               "a larger detector.cascade.calibration_size may find colliding ones", flush=True)
         return None, collides
-    return choose_bands(logits, collides, c["targets"], c.get("min_accuracy", POINTWISE)), collides
+    return choose_bands(logits, collides, c["targets"], c.get("min_accuracy", POINTWISE), c.get("confidence")), collides
 
 
 def cascade_stage(net: torch.nn.Module, space, labeler, test, bands: dict[float, Band], calib_collides: np.ndarray,
