@@ -322,14 +322,16 @@ def _crossing(rest: np.ndarray) -> np.ndarray:
 
 
 def _recording(run, monkeypatch) -> list:
-    pool = run.label_pool()
-    seen, real = [], pool.label_report
+    """Records the meshes the cascade's exact calls judge (in this process: the labeler's verdict, one per mesh)."""
+    assert run.label_pool().workers <= 1
+    lab = run.labeler
+    seen, real = [], lab.verdict
 
-    def label_report(v):
+    def verdict(v):
         seen.append(np.array(v, copy=True))
         return real(v)
 
-    monkeypatch.setattr(pool, "label_report", label_report)
+    monkeypatch.setattr(lab, "verdict", verdict)
     return seen
 
 
@@ -350,7 +352,7 @@ def test_detect_certify_labels_the_band_rows_of_the_users_meshes(tube_run, monke
     rows = np.flatnonzero(band_mask(logit, band))
     assert 5 in rows and len(rows) < len(meshes)
     assert det.exact.numpy().tolist() == band_mask(logit, band).tolist()
-    assert len(seen) == 1 and np.array_equal(seen[0], meshes[rows])  # the user's meshes themselves, not round trips
+    assert np.array_equal(np.stack(seen), meshes[rows])  # the user's meshes themselves, not round trips
     want = logit >= hi
     want[rows] = [r == 5 for r in rows]  # the exact labels
     assert det.collides.numpy().tolist() == want.tolist()
@@ -363,7 +365,7 @@ def test_detect_certify_labels_the_band_rows_of_the_users_meshes(tube_run, monke
     monkeypatch.setattr(run, "band", lambda target, *a, **k: Band(np.median(zl), np.inf, 0.0, 1.0, 0.0))
     det = run.detect(z, certify=0.05)
     rows = np.flatnonzero(zl >= np.median(zl))
-    assert len(seen) == 1 and np.allclose(seen[0], run.decode(z[torch.as_tensor(rows)]).double().numpy())
+    assert np.allclose(np.stack(seen), run.decode(z[torch.as_tensor(rows)]).double().numpy())
     assert det.exact.numpy().tolist() == (zl >= np.median(zl)).tolist() and not det.collides.any()
 
 

@@ -130,7 +130,7 @@ def test_stage_points_their_accuracy_and_timing(stage):
     c1 = pts[("cascade", "FNR<=0.01")]
     assert (c1["samples_per_s_stage"], c1["accuracy"], c1["fnr"], c1["n_scored"]) == (900.0, 0.97, 0.008, 24)
     t_det = 1 / eager["samples_per_s"]
-    t_exact = 1 / pts[("exact", "label + PD")]["samples_per_s"]  # the cascade's exact path: the full label
+    t_exact = 1 / pts[("exact", "verdict")]["samples_per_s"]  # the cascade's exact path: the verdict
     assert c1["samples_per_s"] == pytest.approx(1 / (t_det + 0.2 * t_exact))
     json.dumps(sa, allow_nan=False)  # metrics.json stays valid JSON
     assert any("timing 7 methods" in line for line in stage.lines)

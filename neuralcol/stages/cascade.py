@@ -115,8 +115,9 @@ def load_calibration(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 def exact_ms_per_sample(space, labeler, z: np.ndarray) -> float:
     """Milliseconds per sample of the exact path on codes ``z`` (M, D): decode them with the latent space, then the
-    labeler's ``.label`` one mesh at a time, on one thread (torch's thread count restored after). One warm-up
-    label first (numba compiles on first use in a process)."""
+    labeler's ``.verdict`` (all an exact call of the cascade needs: collides or not, with an early exit) one mesh
+    at a time, on one thread (torch's thread count restored after). One warm-up first (numba compiles on first use
+    in a process)."""
     z = torch.as_tensor(np.asarray(z, np.float32))
     if len(z) == 0:
         raise ValueError("exact_ms_per_sample: no codes")
@@ -125,11 +126,11 @@ def exact_ms_per_sample(space, labeler, z: np.ndarray) -> float:
     try:
         dev = space.box_lo.device
         with torch.no_grad():
-            labeler.label(space.decode(z[:1].to(dev)).double().cpu().numpy()[0])  # warm-up
+            labeler.verdict(space.decode(z[:1].to(dev)).double().cpu().numpy()[0])  # warm-up
             t0 = time.perf_counter()
             verts = space.decode(z.to(dev)).double().cpu().numpy()
             for v in verts:
-                labeler.label(v)
+                labeler.verdict(v)
             seconds = time.perf_counter() - t0
     finally:
         torch.set_num_threads(threads)

@@ -21,8 +21,8 @@ the run's U(Z) test set, so a user reads off "FNR 1 % costs X samples/s". The me
 * ``mesh detector``: decode, then the detector that reads the mesh (when the run has one); its U(Z) accuracy
   from ``metrics["mesh_detector"]["test"]`` if recorded, else on ``n_mesh_detector`` test codes;
 * ``cascade``: one point per target FNR of ``metrics["cascade"]`` (written by the cascade stage), priced with this
-  stage's timings so it is side by side with the others: the eager detector on every code plus the exact full label
-  (the cascade's exact path; the verdict when the full label is not timed) on its ``exact_share``
+  stage's timings so it is side by side with the others: the eager detector on every code plus the exact verdict
+  (the cascade's exact path; the full label when the verdict is not timed) on its ``exact_share``
   (``samples_per_s_stage``: the cascade stage's own figure).
 
 Throughput: every method is timed on the same ``n_timed`` test codes (the latent detector on a batch of ``batch``
@@ -314,7 +314,7 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
                      scored.get(k, (None, None, 0))[2]) for k in timed]
     cascade = metrics.get("cascade")
     if cascade:
-        exact_key = ("exact", "label + PD") if ("exact", "label + PD") in sps else ("exact", "verdict")
+        exact_key = ("exact", "verdict") if ("exact", "verdict") in sps else ("exact", "label + PD")
         points += cascade_points(cascade, sps[exact_key], sps.get(("latent detector", "float32 eager")))
         notes.append("cascade: samples/s priced with this stage's timings (eager float32 detector on every code, exact "
                      f"{exact_key[1]} on its exact share); samples_per_s_stage: the cascade stage's own figure")
