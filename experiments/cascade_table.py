@@ -64,7 +64,7 @@ def redraw_chart(run_dir: Path, png: Path, targets, floor: str, title: str | Non
     rows = cascade_rows(run_dir, targets, (floor,), confidence)
     cascade = {"targets": [{"target_fnr": r["target_fnr"], "samples_per_s": r["samples_per_s"],
                             "test": {k: r[k] for k in ("fnr", "accuracy", "exact_share", "n")}} for r in rows]}
-    exact = sps.get(("exact", "label + PD")) or sps.get(("exact", "verdict"))
+    exact = sps.get(("exact", "verdict")) or sps.get(("exact", "label + PD"))  # the cascade's exact path: the verdict
     points = [p for p in sa["points"] if p["method"] != "cascade"]
     points += cascade_points(cascade, exact, sps.get(("latent detector", "float32 eager")))
     png.parent.mkdir(parents=True, exist_ok=True)
