@@ -38,13 +38,9 @@ def grid_pairs(lo, hi, cell):
 
 
 @njit(cache=True)
-def grid_cells(lo, hi, cell):
-    """Boxes ``lo``/``hi`` (F, 3) binned into a uniform grid of ``cell``: one entry per (box, cell) it touches.
-
-    Returns:
-        keys (E,) cell keys in ascending order, ids (E,) the box of each entry, ilo (F, 3) each box's lower
-        cell, dims (3,) cells per axis (key = (x * dims[1] + y) * dims[2] + z).
-    """
+def cell_ranges(lo, hi, cell):
+    """The cells each box ``lo``/``hi`` (F, 3) spans in a uniform grid of ``cell`` anchored at the boxes' lower
+    corner: ilo, ihi (F, 3) its first and last cell per axis, total (box, cell) entries, dims (3,) cells per axis."""
     n = lo.shape[0]
     origin = np.empty(3)
     for d in range(3):
@@ -63,6 +59,19 @@ def grid_cells(lo, hi, cell):
     dims = np.empty(3, dtype=np.int64)
     for d in range(3):
         dims[d] = ihi[:, d].max() + 1
+    return ilo, ihi, total, dims
+
+
+@njit(cache=True)
+def grid_cells(lo, hi, cell):
+    """Boxes ``lo``/``hi`` (F, 3) binned into a uniform grid of ``cell``: one entry per (box, cell) it touches.
+
+    Returns:
+        keys (E,) cell keys in ascending order, ids (E,) the box of each entry, ilo (F, 3) each box's lower
+        cell, dims (3,) cells per axis (key = (x * dims[1] + y) * dims[2] + z).
+    """
+    n = lo.shape[0]
+    ilo, ihi, total, dims = cell_ranges(lo, hi, cell)
     keys = np.empty(total, dtype=np.int64)
     ids = np.empty(total, dtype=np.int64)
     k = 0
@@ -92,23 +101,7 @@ def sorted_cells(lo, hi, cell):
         (key = (x * dims[1] + y) * dims[2] + z).
     """
     n = lo.shape[0]
-    origin = np.empty(3)
-    for d in range(3):
-        origin[d] = lo[:, d].min()
-    inv = 1.0 / cell
-    ilo = np.empty((n, 3), dtype=np.int64)
-    ihi = np.empty((n, 3), dtype=np.int64)
-    total = 0
-    for f in range(n):
-        cnt = 1
-        for d in range(3):
-            ilo[f, d] = int((lo[f, d] - origin[d]) * inv)
-            ihi[f, d] = int((hi[f, d] - origin[d]) * inv)
-            cnt *= ihi[f, d] - ilo[f, d] + 1
-        total += cnt
-    dims = np.empty(3, dtype=np.int64)
-    for d in range(3):
-        dims[d] = ihi[:, d].max() + 1
+    ilo, ihi, total, dims = cell_ranges(lo, hi, cell)
     n_cells = dims[0] * dims[1] * dims[2]
     order = np.argsort(lo[:, 0], kind="mergesort")
     ids = np.empty(total, dtype=np.int64)
