@@ -47,12 +47,14 @@ from neuralcol.stages.validate import validate_run_config
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.resume import RunDirLock, find_interrupted_run
 from neuralcol.utils.seeding import seed_everything
+from neuralcol.utils.threads import pin_threads
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
     """Run the pipeline for ``cfg`` and write results into ``run_dir``; returns the metrics dict."""
     validate_run_config(cfg)  # every settings error at once, before any work
     validate_model_size(cfg)
+    pin_threads(cfg.get("threads", 1))  # before any work: the numbers must not depend on the core count
     seed_everything(cfg.seed if cfg.seed is not None else None)
     ctx = RunContext(cfg, run_dir)
     rd = ctx.run_dir

@@ -96,7 +96,7 @@ class RunContext:
         if self._latent is None:
             space, report, cached = train_or_load_latent_space(
                 self.dataset, self.features, self.cfg.autoencoder, self.cfg.dataset.latent,
-                int(self.cfg.autoencoder_seed), self.cache.path, logger_factory)
+                int(self.cfg.autoencoder_seed), self.cache.path, logger_factory, threads=self.cfg.get("threads", 1))
             self._latent = LatentStage(space, report, cached)
         return self._latent
 

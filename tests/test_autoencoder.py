@@ -87,6 +87,9 @@ def test_cache_reuse_and_save_load(tube_space, tube_dataset):
     other = OmegaConf.merge(cfg, {"level2": {"epochs": 5}})
     _, _, cached_other = train_or_load_latent_space(tube_dataset, feats, other, LATENT, 0, cache)
     assert not cached_other, "a different config trains a new model"
+    # the thread count is part of the key (issue 30): a latent space trained on the machine's threads is another one
+    _, report_free, cached_free = train_or_load_latent_space(tube_dataset, feats, cfg, LATENT, 0, cache, threads=None)
+    assert not cached_free and report_free["cache_key"] != report["cache_key"]
 
 
 def test_connect_partition_merges_islands():

@@ -34,6 +34,7 @@ from neuralcol.nn.latent_space import LatentSpace
 from neuralcol.nn.normalizer import FeatureNormalizer
 from neuralcol.rundir import CacheDir
 from neuralcol.utils.config import as_dict
+from neuralcol.utils.threads import threads_pinned
 
 
 class PartitionReport(NamedTuple):
@@ -266,8 +267,12 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
 
 
 def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, latent_cfg, seed: int,
-                               cache_dir: str | Path | None, logger=None) -> tuple[LatentSpace, dict, bool]:
+                               cache_dir: str | Path | None, logger=None,
+                               threads: int | None = 1) -> tuple[LatentSpace, dict, bool]:
     """Load the cached latent space for these inputs, or train and cache it.
+
+    ``threads``: torch/BLAS threads the training runs on (``neuralcol.utils.threads``; the trained weights depend
+    on it, so it is part of the cache key); None: the machine's default, whatever it is.
 
     Returns:
         (latent space, report, loaded_from_cache); ``report["cache_key"]`` identifies the latent space (later
@@ -275,10 +280,12 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
     """
     ae, lat = as_dict(ae_cfg), as_dict(latent_cfg)
     train_keys = {k: v for k, v in ae.items() if k not in ("progress_bar", "accelerator", "val_every")}
+    train_keys["threads"] = "machine" if threads is None else int(threads)
     key = autoencoder_cache_key(ds, feats.reference_index, feats.acap.settings, train_keys, lat, seed)
     path = CacheDir(cache_dir).latent_space(key) if cache_dir else None
     if path is None:
-        space, report = train_latent_space(ds, feats, ae, lat, seed, logger)
+        with threads_pinned(threads):
+            space, report = train_latent_space(ds, feats, ae, lat, seed, logger)
         return space, {**report, "cache_key": key}, False
     path.parent.mkdir(parents=True, exist_ok=True)
     # one trainer per cache entry: parallel sweep jobs (hydra/launcher=parallel) wait for the first one
@@ -289,7 +296,8 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
                 return space, {**space.meta, "cache_key": key}, True
             except Exception:  # a broken cache entry is retrained, not fatal
                 path.unlink()
-        space, report = train_latent_space(ds, feats, ae, lat, seed, logger)
+        with threads_pinned(threads):
+            space, report = train_latent_space(ds, feats, ae, lat, seed, logger)
         space.save(path)
         (path.parent / "report.json").write_text(json.dumps({k: v for k, v in report.items()
                                                              if k not in ("train_index", "val_index")}, indent=2))

@@ -51,6 +51,10 @@ def config_problems(cfg: DictConfig) -> list[str]:
                 "detector.targets.pd_clip", "detector.net.width"):
         need(key, lambda v: float(v) > 0, "must be > 0")
     need("labeling.labeler.touch_tol", lambda v: float(v) >= 0, "must be >= 0")
+    threads = _get(cfg, "threads")
+    if threads is not None and not (is_int(threads) and threads >= 1):  # null: the machine's default
+        problems.append(f"threads={threads!r}: must be an integer >= 1 (1, the default, gives the same numbers on "
+                        "every machine) or null for the machine's default")
     if _get(cfg, "labeling.labeler") is not None:  # its _target_ (labeling=<backend>) and its settings
         problems += labeler_problems(cfg.labeling)
     need("method.projected_fraction", lambda v: 0 <= float(v) <= 1, "must lie in [0, 1]")
