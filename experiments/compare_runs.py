@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from neuralcol.rundir import RunDir
+from neuralcol.utils.cli import report_user_errors
+from neuralcol.utils.safe_files import read_torch_file
 
 TIMING = ("seconds", "_s", "ms_per", "_us", "batch_", "threads", "from_cache", "labeled_now", "resumed", "source",
           "speedup")
@@ -63,13 +65,13 @@ def compare_arrays(a: RunDir, b: RunDir) -> list[str]:
             za, zb = np.load(fa), np.load(fb)
             bad += [f"{fa.name}:{k}" for k in sorted(set(za.files) | set(zb.files))
                     if k not in za.files or k not in zb.files or not np.array_equal(za[k], zb[k], equal_nan=True)]
-    sa = torch.load(a.detector, map_location="cpu", weights_only=False)["state"]
-    sb = torch.load(b.detector, map_location="cpu", weights_only=False)["state"]
+    sa, sb = (read_torch_file(rd.detector)["state"] for rd in (a, b))  # never unpickles code
     bad += [f"detector.pt:{k}" for k in sorted(set(sa) | set(sb)) if k not in sa or k not in sb
             or not torch.equal(sa[k], sb[k])]
     return bad
 
 
+@report_user_errors
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m experiments.compare_runs", description=__doc__.splitlines()[0])
     parser.add_argument("run_a", type=Path)

@@ -17,3 +17,8 @@ class MeshFileError(UserInputError):
 
 class DatasetNotFoundError(UserInputError, FileNotFoundError):
     """A configured data set path does not exist or holds no meshes."""
+
+
+class UnsafeFileError(UserInputError):
+    """A saved file (checkpoint, cache entry) holds pickled Python objects, which neuralcol refuses to unpickle
+    (unpickling runs the file's code), or cannot be read at all."""

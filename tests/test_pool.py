@@ -136,7 +136,8 @@ def test_bad_arguments(setup, kwargs, match):
         LabelPool(labeler, **kwargs)
 
 
-def test_progress_bar(setup, capsys):
+def test_progress_bar(setup, capsys, monkeypatch):
+    monkeypatch.setenv("NEURALCOL_PROGRESS", "bar")  # the tqdm bar, as on a terminal (tests/test_progress.py: lines)
     labeler, batch, ref = setup
     with LabelPool(labeler, chunk_size=3, progress=True, desc="test-labels") as pool:
         assert_labels_equal(pool.label(batch), ref)

@@ -143,7 +143,8 @@ def test_hang_times_out_and_is_reported(setup, cluster):
     assert seconds < 60, "two timeouts plus two worker restarts"
 
 
-def test_config_starts_and_closes_its_own_cluster(setup, capsys):
+def test_config_starts_and_closes_its_own_cluster(setup, capsys, monkeypatch):
+    monkeypatch.setenv("NEURALCOL_PROGRESS", "bar")  # the tqdm bar, as on a terminal
     clean, _, batch = setup
     cfg = OmegaConf.load(ROOT / "conf" / "labeling" / "cpu.yaml").pool
     cfg.executor = "dask"  # scheduler null: a LocalCluster of `workers` processes

@@ -24,6 +24,7 @@ from neuralcol.active.stopping import should_stop
 from neuralcol.samples.datamodule import CollisionDataModule
 from neuralcol.samples.store import Origin
 from neuralcol.utils.faults import fault_point
+from neuralcol.utils.safe_files import plain_values
 
 
 @dataclass(frozen=True)
@@ -119,12 +120,14 @@ class RoundCallback(L.Callback):
 
     # ---------------------------------------------------------------- checkpoint state
     def state_dict(self) -> dict:
-        return {"round": self.round, "round_start_epoch": self.round_start_epoch,
-                "round_end_epoch": self.round_end_epoch, "rounds": self.rounds,
-                "finished": self.finished, "stopped_by": self.stopped_by, "elbow": self.elbow,
-                "seconds": dict(self.seconds), "store_len": self.store_len, "batch_size": self.dm.batch_size,
-                "acquire": None if self.acquire is None else self.acquire.state_dict(),
-                "schedules": [asdict(self.bootstrap), asdict(self.update)]}
+        """The rounds' state for the checkpoint, as plain values (the checkpoint loads with ``weights_only=True``)."""
+        state = {"round": self.round, "round_start_epoch": self.round_start_epoch,
+                 "round_end_epoch": self.round_end_epoch, "rounds": self.rounds,
+                 "finished": self.finished, "stopped_by": self.stopped_by, "elbow": self.elbow,
+                 "seconds": dict(self.seconds), "store_len": self.store_len, "batch_size": self.dm.batch_size,
+                 "acquire": None if self.acquire is None else self.acquire.state_dict(),
+                 "schedules": [asdict(self.bootstrap), asdict(self.update)]}
+        return plain_values(state, f"{self.checkpoint_path.name}: RoundCallback state")
 
     def load_state_dict(self, state: dict) -> None:
         wanted = [asdict(self.bootstrap), asdict(self.update)]
@@ -240,4 +243,6 @@ class RoundCallback(L.Callback):
             self.store_len = len(self.dm)
         if self.on_round is not None:
             self.on_round(self.rounds, self.finished, echo=False)
+        # weights_only here picks what is saved (the whole training state, optimizer and callbacks included); the
+        # checkpoint holds plain values only and is read back with weights_only=True (stages/detector.py)
         trainer.save_checkpoint(self.checkpoint_path, weights_only=False)

@@ -71,7 +71,6 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import NamedTuple
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from neuralcol.collision.labeler import ExactLabeler, Label, Labels
 from neuralcol.collision.pool_common import (
@@ -83,6 +82,7 @@ from neuralcol.collision.pool_common import (
     submit_ready,
     warm_up,
 )
+from neuralcol.utils.progress import progress_bar
 
 log = logging.getLogger(__name__)
 
@@ -213,7 +213,8 @@ class LabelPool:
         chunk_size: meshes per task (>= 1). Larger chunks cost less overhead, smaller ones balance better.
         executor: ``"local"`` (None means the same), ``"dask"``, or a user-owned
             :class:`concurrent.futures.Executor` to submit the tasks to (see above).
-        progress: show a tqdm bar over meshes on stderr.
+        progress: report progress over meshes on stderr (a bar on a terminal, lines in a log file:
+            :mod:`neuralcol.utils.progress`).
         desc: label of the progress bar (and of the warning lines).
         mp_context: start method of the worker processes (``"spawn"``, ``"forkserver"``, ``"fork"``).
         timeout: seconds a chunk may run on a worker process before the workers are killed and restarted
@@ -445,7 +446,7 @@ class LabelPool:
         todo = np.setdiff1d(np.arange(n), np.fromiter(skip or {}, dtype=np.int64, count=len(skip or {})))
         # chunks of consecutive meshes to label (the skipped ones are left out)
         tasks = [Task(todo[s:s + self.chunk_size], False) for s in range(0, len(todo), self.chunk_size)]
-        with tqdm(total=n, desc=self.desc, unit="mesh", disable=not self.progress) as bar:
+        with progress_bar(total=n, desc=self.desc, unit="mesh", disable=not self.progress) as bar:
             batch = Batch(n, bar)
             for i, why in (skip or {}).items():
                 batch.fail(i, why)

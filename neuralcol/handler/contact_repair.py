@@ -205,12 +205,12 @@ def repair_meshes(vertices: np.ndarray, faces: np.ndarray, labeler, settings: Re
     Returns:
         (vertices (N, V, 3) float64, resolved (N,) bool, iterations (N,) int).
     """
-    from tqdm.auto import tqdm
+    from neuralcol.utils.progress import progress_bar
 
     v = np.asarray(vertices, np.float64)
     out, ok, its = np.empty_like(v), np.zeros(len(v), bool), np.zeros(len(v), np.int64)
     w = diffusion_operator(faces, v.shape[1]) if len(v) else None
-    for k in tqdm(range(len(v)), desc="contact repair", disable=not progress or len(v) == 0):
+    for k in progress_bar(range(len(v)), desc="contact repair", unit="mesh", disable=not progress or len(v) == 0):
         r = repair_contacts(v[k], faces, labeler, settings.delta * eps, settings.smooth_steps, settings.max_iter,
                             sign, w, max_step=settings.max_step * diagonal, max_smooth=settings.max_smooth)
         out[k], ok[k], its[k] = r.vertices, r.resolved, r.iterations

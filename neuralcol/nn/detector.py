@@ -19,6 +19,7 @@ from torch import nn
 
 from neuralcol.collision.labeler import SUBSET_BOUNDARY
 from neuralcol.utils.files import atomic_path
+from neuralcol.utils.safe_files import plain_values, read_torch_file
 
 
 class DetectorOutput(NamedTuple):
@@ -283,19 +284,26 @@ def build_detector(space, det: dict) -> CollisionDetector:
 
 
 def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, pd_unit: float) -> None:
-    blob = {"state": net.state_dict(), "n_components": net.n_components, "level2_dim": net.level2_dim,
-            "net": {**{k: v for k, v in det["net"].items() if not k.startswith("_")}, **net_widths(det["net"]),
-                    "width": 1.0},  # widths as built
-            "method": method["name"], "pd_unit": pd_unit,
-            "code_features": None if net.feature_activation is None else
-            {"hidden": net.n_code_features, "activation": net.feature_activation}}
+    """Write ``detector.pt``: the weights and plain facts only, so it loads with ``weights_only=True``."""
+    facts = {"n_components": net.n_components, "level2_dim": net.level2_dim,
+             "net": {**{k: v for k, v in det["net"].items() if not k.startswith("_")}, **net_widths(det["net"]),
+                     "width": 1.0},  # widths as built
+             "method": method["name"], "pd_unit": pd_unit,
+             "code_features": None if net.feature_activation is None else
+             {"hidden": net.n_code_features, "activation": net.feature_activation}}
+    blob = {"state": net.state_dict(), **plain_values(facts, Path(path).name)}
     with atomic_path(path) as tmp:
         torch.save(blob, tmp)
 
 
 def load_detector(path: str | Path, map_location="cpu") -> tuple[CollisionDetector, dict]:
-    """The final detector of a run (``detector.pt``) and its metadata."""
-    blob = torch.load(path, map_location=map_location, weights_only=False)
+    """The final detector of a run (``detector.pt``) and its metadata, read without unpickling code.
+
+    Raises:
+        UnsafeFileError: the file holds pickled Python objects (not run) or is damaged; the message names it.
+    """
+    blob = read_torch_file(path, map_location, fix="re-create it with this version of neuralcol (run the run's "
+                                                   "command again in a new directory)")
     cf = blob.get("code_features")
     feats = None
     if cf is not None:  # shapes only; the values come with the state dict

@@ -16,6 +16,7 @@ from neuralcol.geometry.acap import ACAP
 from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder, Level2Autoencoders
 from neuralcol.nn.normalizer import FeatureNormalizer
 from neuralcol.utils.files import atomic_path
+from neuralcol.utils.safe_files import plain_values, read_torch_file
 
 
 class LatentSpace(nn.Module):
@@ -117,7 +118,8 @@ class LatentSpace(nn.Module):
 
     # ------------------------------------------------------------------ persistence
     def save(self, path: str | Path) -> Path:
-        """Save weights, normaliser, box, partition and the architecture to one file."""
+        """Save weights, normaliser, box, partition and the architecture to one file of tensors and plain values
+        (it loads with ``weights_only=True``; :func:`~neuralcol.utils.safe_files.plain_values`)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         l1 = self.net.level1
@@ -126,15 +128,24 @@ class LatentSpace(nn.Module):
                 "activation": l1.activation,
                 "level2": None if l2 is None else {"latent_dim": l2.latent_dim,
                                                     "hidden": l2.decoders[0][0].out_features}}
-        blob = {"arch": arch, "state": self.state_dict(), "acap_kwargs": self.acap_kwargs,
-                "norm_bound": self.norm_bound, "meta": self.meta}
+        facts = plain_values({"arch": arch, "acap_kwargs": self.acap_kwargs, "norm_bound": self.norm_bound,
+                              "meta": self.meta}, path.name)
+        blob = {**facts, "state": self.state_dict()}
         with atomic_path(path) as tmp:
             torch.save(blob, tmp)
         return path
 
     @classmethod
     def load(cls, path: str | Path, map_location="cpu") -> LatentSpace:
-        blob = torch.load(path, map_location=map_location, weights_only=False)
+        """The latent space saved by :meth:`save`, read without unpickling code
+        (:func:`~neuralcol.utils.safe_files.read_torch_file`).
+
+        Raises:
+            UnsafeFileError: the file holds pickled Python objects (not run) or is damaged; the message names it.
+        """
+        path = Path(path)
+        blob = read_torch_file(path, map_location, fix=f"delete {path.parent} and run the command again "
+                                                        "(the autoencoder is retrained into the cache)")
         arch, state = blob["arch"], blob["state"]
         l1 = Level1Autoencoder(arch["n_vertices"], arch["n_components"], arch["hidden"],
                                activation=arch.get("activation", "tanh"))

@@ -18,6 +18,7 @@ from torch import nn
 
 from neuralcol.geometry.contact_pairs import ContactFeatures
 from neuralcol.utils.files import atomic_path
+from neuralcol.utils.safe_files import plain_values, read_torch_file
 
 
 class MeshDetector(nn.Module):
@@ -87,15 +88,18 @@ def mesh_logits(net: MeshDetector, vertices: np.ndarray, batch: int = 256) -> np
 
 def save_mesh_detector(path: Path, net: MeshDetector) -> None:
     f = net.features
-    blob = {"pairs": f.pairs.cpu(), "faces": f.faces.cpu(), "radius": f.radius, "clip": f.clip,
-            "hidden": net.hidden, "state": {k: v.cpu() for k, v in net.mlp.state_dict().items()}}
+    blob = plain_values({"pairs": f.pairs.cpu(), "faces": f.faces.cpu(), "radius": f.radius, "clip": f.clip,
+                         "hidden": net.hidden, "state": {k: v.cpu() for k, v in net.mlp.state_dict().items()}},
+                        Path(path).name)
     with atomic_path(path) as tmp:
         torch.save(blob, tmp)
 
 
 def load_mesh_detector(path: str | Path) -> MeshDetector:
-    """The mesh detector saved by :func:`train_mesh_detector` (read with ``weights_only=True``)."""
-    blob = torch.load(path, map_location="cpu", weights_only=True)
+    """The mesh detector saved by :func:`train_mesh_detector`, read without unpickling code
+    (:func:`~neuralcol.utils.safe_files.read_torch_file`; a refused file raises ``UnsafeFileError`` naming it)."""
+    blob = read_torch_file(path, "cpu", fix="re-create it with this version of neuralcol (run the run's command "
+                                            "again in a new directory)")
     # the saved faces are already the ones around the pair vertices; ContactFeatures keeps them all
     feats = ContactFeatures(blob["pairs"].numpy(), blob["faces"].numpy(), float(blob["radius"]), float(blob["clip"]))
     net = MeshDetector(feats, hidden=int(blob["hidden"]))

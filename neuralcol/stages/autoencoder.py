@@ -34,6 +34,7 @@ from neuralcol.nn.latent_space import LatentSpace
 from neuralcol.nn.normalizer import FeatureNormalizer
 from neuralcol.rundir import CacheDir
 from neuralcol.utils.config import as_dict
+from neuralcol.utils.progress import trainer_progress
 from neuralcol.utils.threads import threads_pinned
 
 
@@ -178,9 +179,9 @@ def _stage_logger(logger, stage: str):
 def _trainer(ae_cfg: dict, epochs: int, logger, callbacks=()) -> L.Trainer:
     return L.Trainer(max_epochs=epochs, accelerator=ae_cfg.get("accelerator", "auto"), devices=1,
                      logger=logger if logger is not None else False, enable_checkpointing=False,
-                     enable_progress_bar=bool(ae_cfg.get("progress_bar", True)), enable_model_summary=False,
-                     log_every_n_steps=1, check_val_every_n_epoch=int(ae_cfg.get("val_every", 50)),
-                     callbacks=list(callbacks), deterministic=False)
+                     enable_model_summary=False, log_every_n_steps=1,
+                     check_val_every_n_epoch=int(ae_cfg.get("val_every", 50)), deterministic=False,
+                     **trainer_progress(bool(ae_cfg.get("progress_bar", True)), "autoencoder", callbacks))
 
 
 def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConfig | dict,

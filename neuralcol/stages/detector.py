@@ -33,6 +33,8 @@ from neuralcol.samples.store import CollisionRows
 from neuralcol.stages.validate import METHODS  # one list of method names
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.files import atomic_path, write_json_atomic
+from neuralcol.utils.progress import trainer_progress
+from neuralcol.utils.safe_files import numpy_values_allowed, read_torch_file
 
 
 def evaluate_on_test(module: DetectorLitModule, test: CollisionRows) -> dict:
@@ -135,6 +137,9 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     rd = RunDir(run_dir)
     ckpt = rd.checkpoint
     resuming = ckpt.is_file()
+    if resuming:  # refused here, with the file's name, if it holds pickled objects; they are never run
+        read_torch_file(ckpt, fix=f"delete it to restart the detector's training in {run_dir}, or start a new run "
+                                  "directory")
     if not resuming and len(dm) > 0:
         dm.store.truncate(0)  # an earlier attempt died before its first checkpoint
     sched = {k: Schedule(**method[k]) for k in ("bootstrap", "update")}
@@ -178,8 +183,10 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
         dm.append(boot.z, boot.pd, boot.pd_sub, boot.collides, boot.subset, 0, boot.origin)
         rounds_cb.add_label_seconds(boot.label_seconds)
     trainer = instantiate(det["trainer"])(max_epochs=rounds_cb.max_epochs,
-                                          logger=logger if logger is not None else False, callbacks=[rounds_cb])
-    trainer.fit(module, datamodule=dm, ckpt_path=str(ckpt) if resuming else None)
+                                          logger=logger if logger is not None else False,
+                                          **trainer_progress(bool(det.get("progress_bar", False)), name, [rounds_cb]))
+    with numpy_values_allowed():  # Lightning reads the checkpoint as read_torch_file does, never unpickling code
+        trainer.fit(module, datamodule=dm, ckpt_path=str(ckpt) if resuming else None, weights_only=True)
     final = module.net.cpu()
     save_detector(rd.detector, final, det, method, pd_unit)
     preds = rd.test_predictions

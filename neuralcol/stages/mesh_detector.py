@@ -31,6 +31,7 @@ from neuralcol.nn.mesh_detector import (
     save_mesh_detector,
 )
 from neuralcol.utils.config import as_dict
+from neuralcol.utils.progress import trainer_progress
 
 
 def train_mesh_detector(space, dc_z: np.ndarray, dc_collides: np.ndarray, real_vertices: np.ndarray,
@@ -93,9 +94,9 @@ def train_mesh_detector(space, dc_z: np.ndarray, dc_collides: np.ndarray, real_v
     steps_per_epoch = max(1, -(-len(train) // int(tc["batch_size"])))
     epochs = max(1, min(int(tc["epochs"]), -(-int(tc["max_steps"]) // steps_per_epoch)))
     trainer = L.Trainer(max_epochs=epochs, logger=logger if logger is not None else False,
-                        enable_checkpointing=False, enable_progress_bar=bool(progress), enable_model_summary=False,
+                        enable_checkpointing=False, enable_model_summary=False,
                         num_sanity_val_steps=0, accelerator="cpu", devices=1,
-                        log_every_n_steps=min(10, steps_per_epoch))
+                        log_every_n_steps=min(10, steps_per_epoch), **trainer_progress(progress, "mesh detector"))
     t1 = time.perf_counter()
     trainer.fit(module, train_dataloaders=train_dl, val_dataloaders=val_dl)
     net = module.net.cpu().eval()
