@@ -109,6 +109,17 @@ def _load_folder(folder: Path, rel_area_tol: float) -> tuple[np.ndarray, np.ndar
     return verts, f0, [p.stem for p in mesh_files]
 
 
+def _array_names(names: np.ndarray | None, n: int, path: Path) -> list[str]:
+    """The N mesh names of an array data set from its optional ``names`` array (N,) of str or bytes."""
+    if names is None:
+        return [f"{i}" for i in range(n)]
+    names = np.asarray(names)
+    if names.shape != (n,):
+        raise MeshFileError(f"{path}: 'names' has shape {names.shape}, expected ({n},): one name per mesh "
+                            "(or leave 'names' out)")
+    return [x.decode(errors="replace") if isinstance(x, bytes) else str(x) for x in names.tolist()]
+
+
 def _load_array_file(path: Path, rel_area_tol: float) -> tuple[np.ndarray, np.ndarray, list[str]]:
     try:
         if path.suffix.lower() == ".npz":
@@ -127,14 +138,14 @@ def _load_array_file(path: Path, rel_area_tol: float) -> tuple[np.ndarray, np.nd
             f"{path}: missing array(s) {missing}; found {sorted(data)}; an array data set holds "
             "'vertices' (N, V, 3) and 'faces' (F, 3)"
         )
-    verts = np.asarray(data["vertices"], dtype=np.float64)
+    verts = np.asarray(data["vertices"])
+    if verts.dtype.kind not in "iuf":
+        raise MeshFileError(f"{path}: 'vertices' has dtype {verts.dtype}, expected real (float) coordinates")
+    verts = verts.astype(np.float64)
     faces = np.asarray(data["faces"])
     if verts.ndim != 3 or verts.shape[-1] != 3 or len(verts) == 0:
         raise MeshFileError(f"{path}: 'vertices' has shape {verts.shape}, expected (N, V, 3) with N > 0")
-    if "names" in data:
-        names = [n.decode() if isinstance(n, bytes) else str(n) for n in np.asarray(data["names"]).tolist()]
-    else:
-        names = [f"{i}" for i in range(len(verts))]
+    names = _array_names(data.get("names"), len(verts), path)
     check_faces(faces, verts.shape[1], f"{path}['faces']")
     for i, v in enumerate(verts):
         check_vertices(v, faces, f"{path}[vertices][{i}]", rel_area_tol)

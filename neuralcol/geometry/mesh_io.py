@@ -7,6 +7,7 @@ the face list of every mesh of a data set stays comparable.
 
 from __future__ import annotations
 
+import io
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -14,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from neuralcol.errors import MeshFileError
+from neuralcol.geometry.topology import check_coordinates, check_face_indices
 
 MESH_SUFFIXES = (".obj", ".ply", ".off")
 
@@ -56,6 +58,14 @@ def _declared_face_count(path: Path) -> int | None:
     return None
 
 
+def _mesh_source(path: Path) -> Path | io.StringIO:
+    """What trimesh reads: an OBJ or OFF file as text decoded here, bytes that are not UTF-8 (e.g. in a comment)
+    replaced by U+FFFD, so that reading never depends on trimesh's optional encoding detector; PLY as the file."""
+    if path.suffix.lower() in (".obj", ".off"):
+        return io.StringIO(path.read_bytes().decode("utf-8", errors="replace"))
+    return path
+
+
 def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Read one triangle mesh, keeping vertex and face order.
 
@@ -66,7 +76,8 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         vertices (V, 3) float64 and faces (F, 3) int64.
 
     Raises:
-        MeshFileError: the file is missing, unreadable, holds no triangle mesh, or has non-triangle faces.
+        MeshFileError: the file is missing, unreadable, holds no triangle mesh, has non-triangle faces, faces
+            outside its vertices, or non-finite or huge coordinates (``topology.check_coordinates``).
     """
     import trimesh  # local: keeps `import neuralcol` light
 
@@ -76,9 +87,11 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshFileError(f"{path}: unsupported mesh format '{path.suffix}'; use one of {', '.join(MESH_SUFFIXES)}")
     try:
-        mesh = trimesh.load(path, process=False, maintain_order=True, force="mesh")
+        mesh = trimesh.load(_mesh_source(path), file_type=path.suffix.lower().lstrip("."), process=False,
+                            maintain_order=True, force="mesh")
     except Exception as exc:  # trimesh raises many types for broken files
-        raise MeshFileError(f"{path}: cannot be read as a mesh ({type(exc).__name__}: {exc})") from exc
+        reason = " ".join(str(exc).split())[:200]  # one line
+        raise MeshFileError(f"{path}: cannot be read as a mesh ({type(exc).__name__}: {reason})") from exc
     vertices = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
     if len(vertices) == 0 or len(faces) == 0:
@@ -86,6 +99,10 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
             f"{path}: holds no triangle mesh ({len(vertices)} vertices, {len(faces)} faces); "
             "remove it from the data set folder"
         )
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise MeshFileError(f"{path}: vertices have shape {vertices.shape}, expected (V, 3): x y z on each vertex line")
+    check_face_indices(faces, len(vertices), str(path))
+    check_coordinates(vertices, str(path))
     declared = _declared_face_count(path)
     if declared is not None and declared != len(faces):
         raise MeshFileError(

@@ -57,6 +57,31 @@ def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(cross, axis=-1)
 
 
+def check_face_indices(faces: np.ndarray, n_vertices: int, where: str) -> None:
+    """Validate the shape, dtype and index range of a face array: (F, 3) integers in 0..V-1, F > 0.
+
+    Args:
+        faces: (F, 3) int vertex indices.
+        n_vertices: number of vertices V.
+        where: name of the file or array, used in error messages.
+
+    Raises:
+        MeshFileError: naming ``where`` and the first offending face.
+    """
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise MeshFileError(
+            f"{where}: faces have shape {faces.shape}, expected (F, 3) triangles with F > 0; "
+            "triangulate the mesh first"
+        )
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise MeshFileError(f"{where}: faces have dtype {faces.dtype}, expected integer vertex indices")
+    bad = np.nonzero((faces < 0) | (faces >= n_vertices))[0]
+    if len(bad):
+        raise MeshFileError(
+            f"{where}: face {bad[0]} = {faces[bad[0]].tolist()} refers to a vertex outside 0..{n_vertices - 1}"
+        )
+
+
 def check_faces(faces: np.ndarray, n_vertices: int, where: str) -> EdgeTopology:
     """Validate a face array: triangles, indices in range, no repeated index, manifold edges.
 
@@ -72,18 +97,7 @@ def check_faces(faces: np.ndarray, n_vertices: int, where: str) -> EdgeTopology:
         MeshFileError: naming ``where``, the first offending face or edge, and the fix.
     """
     faces = np.asarray(faces)
-    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
-        raise MeshFileError(
-            f"{where}: faces have shape {faces.shape}, expected (F, 3) triangles with F > 0; "
-            "triangulate the mesh first"
-        )
-    if not np.issubdtype(faces.dtype, np.integer):
-        raise MeshFileError(f"{where}: faces have dtype {faces.dtype}, expected integer vertex indices")
-    bad = np.nonzero((faces < 0) | (faces >= n_vertices))[0]
-    if len(bad):
-        raise MeshFileError(
-            f"{where}: face {bad[0]} = {faces[bad[0]].tolist()} refers to a vertex outside 0..{n_vertices - 1}"
-        )
+    check_face_indices(faces, n_vertices, where)
     rep = np.nonzero((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2]))[0]
     if len(rep):
         raise MeshFileError(
@@ -107,6 +121,30 @@ MAX_COORDINATE = 1.0e12
 MAX_OFFSET_RATIO = 1.0e4
 
 
+def check_coordinates(vertices: np.ndarray, where: str) -> None:
+    """Validate the vertex coordinates of one mesh: finite, at most ``MAX_COORDINATE`` in absolute value.
+
+    Args:
+        vertices: (V, 3) float, V > 0.
+        where: file name for error messages.
+
+    Raises:
+        MeshFileError: naming ``where`` and the first offending vertex, or the largest coordinate.
+    """
+    bad = np.nonzero(~np.isfinite(vertices).all(axis=-1))[0]
+    if len(bad):
+        raise MeshFileError(
+            f"{where}: vertex {bad[0]} has non-finite coordinates {vertices[bad[0]].tolist()} "
+            f"({len(bad)} such vertices); fix or drop this mesh"
+        )
+    extent = float(np.abs(vertices).max())
+    if extent > MAX_COORDINATE:
+        raise MeshFileError(
+            f"{where}: coordinates reach {extent:.3g} (> {MAX_COORDINATE:.0e}); squared lengths overflow in float32: "
+            "rescale the data set (e.g. to meters or to a unit bounding box)"
+        )
+
+
 def check_vertices(vertices: np.ndarray, faces: np.ndarray, where: str, rel_area_tol: float) -> None:
     """Validate vertex coordinates of one mesh: finite, not huge or far off the origin, no zero-area face.
 
@@ -119,19 +157,9 @@ def check_vertices(vertices: np.ndarray, faces: np.ndarray, where: str, rel_area
     Raises:
         MeshFileError: naming ``where`` and the first offending vertex or face.
     """
-    bad = np.nonzero(~np.isfinite(vertices).all(axis=-1))[0]
-    if len(bad):
-        raise MeshFileError(
-            f"{where}: vertex {bad[0]} has non-finite coordinates {vertices[bad[0]].tolist()} "
-            f"({len(bad)} such vertices); fix or drop this mesh"
-        )
+    check_coordinates(vertices, where)
     extent = float(np.abs(vertices).max())
     diag = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
-    if extent > MAX_COORDINATE:
-        raise MeshFileError(
-            f"{where}: coordinates reach {extent:.3g} (> {MAX_COORDINATE:.0e}); squared lengths overflow in float32: "
-            "rescale the data set (e.g. to meters or to a unit bounding box)"
-        )
     if extent > MAX_OFFSET_RATIO * diag:
         raise MeshFileError(
             f"{where}: the mesh lies {extent:.3g} from the origin but is only {diag:.3g} across; float32 features "
