@@ -10,7 +10,7 @@ TORCH   ?= torch==2.13.0
 STAMP   := $(VENV)/.installed
 ARGS    ?=
 
-.PHONY: help install lint test test-full run sweep bench bench-quick clean
+.PHONY: help install lint test test-full run sweep bench bench-quick gpu-check clean
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -46,6 +46,9 @@ bench: $(STAMP)  ## benchmarks -> bench/results.json, bench/results.md
 
 bench-quick: $(STAMP)  ## fewer repetitions, for development
 	$(PYTHON) -m bench.run --quick $(ARGS)
+
+gpu-check: $(STAMP)  ## GPU kit, <= 9 min on CUDA -> bench/gpu/ (no CUDA: CPU dry run); docs/gpu.md
+	$(PYTHON) -m bench.gpu_check $(ARGS)
 
 clean:  ## remove caches and outputs (keeps .venv and data/)
 	rm -rf outputs multirun .pytest_cache .ruff_cache bench/tmp

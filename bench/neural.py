@@ -69,15 +69,7 @@ def measure(ctx: BenchContext) -> dict:
     labeler = build_labeler(cfg.labeling, space.faces.numpy(), space.rest_vertices.numpy(),
                             partition=space.partition.numpy())
     n_exact = 16 if quick else 48
-    ze = z[:n_exact]
-
-    def exact():
-        with torch.no_grad():
-            verts = space.decode(ze).double().numpy()
-        return [labeler.label(v) for v in verts]
-
-    exact_s = repeat(exact, max(2, reps // 2))
-    out["exact_ms_per_sample"] = summarize(exact_s, 1e3 / n_exact)
+    out["exact_ms_per_sample"] = exact_ms_per_sample(space, labeler, z[:n_exact], reps // 2)
     out["neural_vs_exact_speedup"] = ratio(out["exact_ms_per_sample"], as_ms(out["detector_us_per_sample_b4096"]))
     fast_notes: list[str] = []
     out.update(fast_forms(net, z, space, reps, out["exact_ms_per_sample"], fast_notes))
@@ -133,45 +125,64 @@ def measure(ctx: BenchContext) -> dict:
     return out
 
 
-def fast_forms(net, z: torch.Tensor, space, reps: int, exact_ms: dict, notes: list[str]) -> dict:
-    """The detector's eager forward against FastDetector (torch.compile, float32 and bfloat16) at batch ``len(z)``,
-    interleaved call by call; their agreement with eager on 100 000 uniform codes; speedups over ``exact_ms``.
-    Keys ``detector_{compiled,compiled_bf16}_*``; a form that fails to compile is left out (``notes`` says why)."""
+def exact_ms_per_sample(space, labeler, z: torch.Tensor, reps: int) -> dict:
+    """Milliseconds per code of the exact path on the CPU: decode the (B, D) codes ``z`` and label every mesh fully
+    (``labeler.label``, one core); ``max(2, reps)`` repetitions after one warm-up."""
+
+    def exact():
+        with torch.no_grad():
+            verts = space.decode(z).double().numpy()
+        return [labeler.label(v) for v in verts]
+
+    return summarize(repeat(exact, max(2, reps)), 1e3 / len(z))
+
+
+def fast_forms(net, z: torch.Tensor, space, reps: int, exact_ms: dict, notes: list[str],
+               forms: dict[str, str] = FAST_KEYS, n_agree: int = 100_000) -> dict:
+    """The detector's eager forward against FastDetector (torch.compile; ``forms``: bench key -> form, default float32
+    and bfloat16) at batch ``len(z)`` on the device of ``net`` and ``z`` (on CUDA each call is synchronised),
+    interleaved call by call; their agreement with eager on ``n_agree`` uniform codes; speedups over ``exact_ms``.
+    Keys ``detector_{compiled,compiled_bf16,...}_*`` (``_b<len(z)>`` for the timings); a form that fails to compile
+    is left out (``notes`` says why)."""
     from neuralcol.nn.fast_inference import FastDetector, bf16_is_native
 
     out: dict = {}
-    notes.append(f"bfloat16 {'native' if bf16_is_native('cpu') else 'emulated'} on this CPU")
-    forms = {}
-    for key, form in FAST_KEYS.items():
+    device = "this CPU" if z.device.type == "cpu" else str(z.device)
+    notes.append(f"bfloat16 {'native' if bf16_is_native(z.device) else 'emulated'} on {device}")
+    sync = torch.cuda.synchronize if z.device.type == "cuda" else (lambda: None)
+    batch = f"b{len(z)}"
+    built = {}
+    for key, form in forms.items():
         t0 = time.perf_counter()
         try:
-            forms[key] = FastDetector.from_form(net, form, compile=True)
+            built[key] = FastDetector.from_form(net, form, compile=True)
         except RuntimeError as exc:
             notes.append(f"{key}: {str(exc).splitlines()[0]}")
             continue
         out[f"detector_{key}_build_s"] = summarize([time.perf_counter() - t0])
-    if not forms:
+    if not built:
         return out
-    timings: dict[str, list[float]] = {"eager": [], **{k: [] for k in forms}}
-    calls = {"eager": lambda: net(z).prob, **{k: (lambda f=f: f(z).prob) for k, f in forms.items()}}
+    timings: dict[str, list[float]] = {"eager": [], **{k: [] for k in built}}
+    calls = {"eager": lambda: (net(z).prob, sync()),
+             **{k: (lambda f=f: (f(z).prob, sync())) for k, f in built.items()}}
     with torch.no_grad():
         for _ in range(reps * 10 + 2):
             for key, call in calls.items():
                 timings[key] += repeat(call, 1, warmup=0)
         gen = torch.Generator().manual_seed(1)
-        codes = space.sample(100_000, generator=gen)
+        codes = space.sample(n_agree, generator=gen).to(z.device)
         ref = torch.cat([net(c).prob for c in codes.split(4096)])
-        for key, f in forms.items():
+        for key, f in built.items():
             prob = f(codes).prob
             out[f"detector_{key}_label_flips"] = summarize([float(((prob > 0.5) != (ref > 0.5)).float().mean())])
             out[f"detector_{key}_max_prob_diff"] = summarize([float((prob - ref).abs().max())])
             if f.recheck_band is not None:
                 out[f"detector_{key}_rechecked_fraction"] = summarize([f.rechecked_fraction])
     eager = timings.pop("eager")[2:]
-    out["detector_eager_interleaved_us_per_sample_b4096"] = summarize(eager, 1e6 / len(z))
+    out[f"detector_eager_interleaved_us_per_sample_{batch}"] = summarize(eager, 1e6 / len(z))
     for key, t in timings.items():
         t = t[2:]
-        out[f"detector_{key}_us_per_sample_b4096"] = summarize(t, 1e6 / len(z))
-        out[f"detector_{key}_vs_eager_b4096"] = summarize([a / b for a, b in zip(eager, t)])  # per interleaved call
-        out[f"neural_vs_exact_speedup_{key}"] = ratio(exact_ms, as_ms(out[f"detector_{key}_us_per_sample_b4096"]))
+        out[f"detector_{key}_us_per_sample_{batch}"] = summarize(t, 1e6 / len(z))
+        out[f"detector_{key}_vs_eager_{batch}"] = summarize([a / b for a, b in zip(eager, t)])  # per interleaved call
+        out[f"neural_vs_exact_speedup_{key}"] = ratio(exact_ms, as_ms(out[f"detector_{key}_us_per_sample_{batch}"]))
     return out

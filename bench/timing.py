@@ -22,6 +22,19 @@ def repeat(fn: Callable[[], object], reps: int, warmup: int = 1) -> list[float]:
     return out
 
 
+def repeat_within(fn: Callable[[], object], reps: int, budget_s: float, warmup: int = 1) -> list[float]:
+    """As :func:`repeat`, but no further call starts once the timed calls took ``budget_s`` seconds in all (at
+    least one timed call): a bounded measurement when the cost of one call is not known beforehand."""
+    for _ in range(warmup):
+        fn()
+    out: list[float] = []
+    while len(out) < max(reps, 1) and (not out or sum(out) < budget_s):
+        t0 = time.perf_counter()
+        fn()
+        out.append(time.perf_counter() - t0)
+    return out
+
+
 def repeat_interleaved(fn_a: Callable[[], object], fn_b: Callable[[], object],
                        reps: int) -> tuple[list[float], list[float]]:
     """Wall-clock seconds of ``reps`` calls of ``fn_a`` and ``fn_b``, alternating call by call so both see the same

@@ -1,49 +1,55 @@
-"""``training``: seconds per epoch of the SCAPE autoencoder and of the detector (CPU presets)."""
+"""``training``: seconds per epoch of the SCAPE autoencoder and of the detector (CPU presets).
+:func:`ae_epoch_seconds` and :func:`detector_epoch_seconds` are shared with the GPU kit (``bench.gpu_check``)."""
 
 from __future__ import annotations
 
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bench.context import BenchContext
 from bench.timing import repeat, summarize
 
+if TYPE_CHECKING:
+    from neuralcol.nn.latent_space import LatentSpace
 
-def measure(ctx: BenchContext) -> dict:
-    """Seconds per epoch: the SCAPE autoencoder (CPU preset) and the detector (CPU preset, 10 000 rows).
 
-    Each is timed at two epoch counts; the per-epoch figure is the slope, so set-up costs (Trainer, data,
-    partition) cancel."""
+def ae_epoch_seconds(ds, feats, ae: dict, latent: dict, epochs: tuple[int, int],
+                     reps: int) -> tuple[list[float], LatentSpace]:
+    """Seconds per epoch of one autoencoder level (the ``ae`` settings, its ``accelerator`` included): both levels
+    trained for ``epochs[0]`` and for ``epochs[1]`` epochs, ``reps`` times each; the per-epoch figure is the slope,
+    so set-up costs (Trainer, data, partition) cancel. Returns the ``reps`` slopes and the last latent space
+    trained (``epochs[1]`` epochs per level)."""
+    from neuralcol.stages.autoencoder import train_latent_space
+
+    lo_e, hi_e = epochs
+    last = []
+
+    def train_ae(n: int):
+        a = {**ae, "level1": {**ae["level1"], "epochs": n}, "level2": {**ae["level2"], "epochs": n}}
+        last[:] = [train_latent_space(ds, feats, a, latent, 0)[0]]
+
+    t_lo = repeat(lambda: train_ae(lo_e), reps, warmup=0)
+    t_hi = repeat(lambda: train_ae(hi_e), reps, warmup=0)
+    return [(b - a) / (2 * (hi_e - lo_e)) for a, b in zip(t_lo, t_hi)], last[0]  # both levels ran n epochs
+
+
+def detector_epoch_seconds(space, det: dict, n: int, epochs: tuple[int, int], reps: int,
+                           accelerator: str = "cpu") -> list[float]:
+    """Seconds per epoch of the detector ``det`` configures (network, batch, loss) on ``n`` random rows of the box
+    of ``space`` (80 % trained, 20 % validated each epoch) on ``accelerator``: the slope between ``epochs[0]`` and
+    ``epochs[1]`` epochs, ``reps`` times."""
     from lightning.pytorch import Trainer
 
-    from neuralcol.lit.detector import DetectorLitModule
+    from neuralcol.lit.detector import detector_module
     from neuralcol.nn.detector import build_detector
     from neuralcol.samples.datamodule import CollisionDataModule
     from neuralcol.samples.store import CollisionStore
-    from neuralcol.stages.autoencoder import train_latent_space
-    from neuralcol.utils.config import as_dict
 
-    cfg = ctx.cfg
-    ds, feats = ctx.pipeline.dataset, ctx.pipeline.features
-    ae = as_dict(cfg.autoencoder)
-    lo_e, hi_e = (5, 15) if ctx.quick else (10, 40)
-
-    def train_ae(epochs: int):
-        a = {**ae, "level1": {**ae["level1"], "epochs": epochs}, "level2": {**ae["level2"], "epochs": epochs}}
-        return train_latent_space(ds, feats, a, as_dict(cfg.dataset.latent), 0)
-
-    reps = max(2, ctx.reps // 3)
-    t_lo = repeat(lambda: train_ae(lo_e), reps, warmup=0)
-    t_hi = repeat(lambda: train_ae(hi_e), reps, warmup=0)
-    # per level-epoch: both levels run `epochs` epochs
-    ae_epoch = [(b - a) / (2 * (hi_e - lo_e)) for a, b in zip(t_lo, t_hi)]
-    space, _ = train_ae(2)
-    # detector: 10 000 random rows of the SCAPE latent box, the CPU preset's network, batch and loss
-    det = as_dict(cfg.detector)
-    n = 10_000
     gen = np.random.default_rng(0)
+    d_lo, d_hi = epochs
     with tempfile.TemporaryDirectory() as tmp:
         store = CollisionStore(Path(tmp) / "dc.h5", space.dim, space.n_parts)
         pd_sub = gen.normal(0, 0.01, size=(n, space.n_parts))
@@ -53,22 +59,35 @@ def measure(ctx: BenchContext) -> dict:
         dm = CollisionDataModule(Path(tmp) / "dc.h5", space.dim, space.n_parts, int(det["batch_size"]), 0.01,
                                  float(det["targets"]["pd_clip"]))
         dm.refresh()
-        loss = det["loss"]
 
-        def train_det(epochs: int):
-            net = build_detector(space, det)
-            module = DetectorLitModule(net, lr=float(det["lr"]), w_pd=loss["w_pd"], w_pdsum=loss["w_pdsum"],
-                                       w_r=loss["w_r"], w_ce=loss["w_ce"], w_b=1.0, margin=loss["margin"],
-                                       temperature=loss["temperature"])
-            Trainer(max_epochs=epochs, accelerator="cpu", logger=False, enable_checkpointing=False,
+        def train_det(n_epochs: int):
+            module = detector_module(build_detector(space, det), det, w_b=1.0, lr=float(det["lr"]))
+            Trainer(max_epochs=n_epochs, accelerator=accelerator, devices=1, logger=False, enable_checkpointing=False,
                     enable_progress_bar=False, enable_model_summary=False).fit(module, datamodule=dm)
 
-        d_lo, d_hi = (1, 3) if ctx.quick else (2, 6)
         t_dlo = repeat(lambda: train_det(d_lo), reps, warmup=0)
         t_dhi = repeat(lambda: train_det(d_hi), reps, warmup=0)
         dm.store.close()
-    det_epoch = [(b - a) / (d_hi - d_lo) for a, b in zip(t_dlo, t_dhi)]
-    ctx.notes["training"] = (f"autoencoder: SCAPE, CPU preset, slope between {lo_e} and {hi_e} epochs per level "
-                             f"(seconds per epoch of one level); detector: CPU preset on {n} rows (80 % trained, "
-                             f"20 % validated each epoch), slope between {d_lo} and {d_hi} epochs")
+    return [(b - a) / (d_hi - d_lo) for a, b in zip(t_dlo, t_dhi)]
+
+
+def measure(ctx: BenchContext) -> dict:
+    """Seconds per epoch: the SCAPE autoencoder (CPU preset) and the detector (CPU preset, 10 000 rows).
+
+    Each is timed at two epoch counts; the per-epoch figure is the slope, so set-up costs (Trainer, data,
+    partition) cancel."""
+    from neuralcol.utils.config import as_dict
+
+    cfg = ctx.cfg
+    ae_epochs = (5, 15) if ctx.quick else (10, 40)
+    det_epochs = (1, 3) if ctx.quick else (2, 6)
+    reps = max(2, ctx.reps // 3)
+    n = 10_000
+    ae_epoch, space = ae_epoch_seconds(ctx.pipeline.dataset, ctx.pipeline.features, as_dict(cfg.autoencoder),
+                                       as_dict(cfg.dataset.latent), ae_epochs, reps)
+    det_epoch = detector_epoch_seconds(space, as_dict(cfg.detector), n, det_epochs, reps)
+    ctx.notes["training"] = (f"autoencoder: SCAPE, CPU preset, slope between {ae_epochs[0]} and {ae_epochs[1]} "
+                             "epochs per level (seconds per epoch of one level); detector: CPU preset on "
+                             f"{n} rows (80 % trained, 20 % validated each epoch), slope between {det_epochs[0]} "
+                             f"and {det_epochs[1]} epochs")
     return {"ae_epoch_s": summarize(ae_epoch), "detector_epoch_s_per_10k": summarize(det_epoch)}
