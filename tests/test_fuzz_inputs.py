@@ -39,7 +39,20 @@ from neuralcol.geometry.mesh_io import read_mesh
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 30
-CASE_SECONDS = 10.0  # every case takes milliseconds; a case past this hangs
+CASE_SECONDS = 30.0  # every case takes milliseconds once the kernels are compiled; a case past this hangs
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _compiled_kernels():
+    """Compile the labeler's numba kernels before any guarded case: on a fresh clone (no numba cache) the first
+    label compiles for longer than a case may take, and an alarm inside numba's compiler is no test of the input."""
+    from neuralcol.collision.labeler import ExactLabeler
+
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=np.float64)
+    faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    lab = ExactLabeler(faces, verts)
+    lab.label(verts)
+    lab.verdict(verts)
 
 
 # ---------------------------------------------------------------------------------------------- the time guard
