@@ -28,6 +28,15 @@ def shells(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     return connected_components(g, directed=False)[1]
 
 
+def bone_rotation(axis: str, degrees: float) -> torch.Tensor:
+    """(1, 4, 4) homogeneous rotation about the bone's local ``axis`` (anny's local-bone pose parameters)."""
+    a = torch.tensor([np.deg2rad(degrees)], dtype=torch.float32)
+    m = torch.eye(4).repeat(1, 1, 1)
+    i, j = {"x": (1, 2), "y": (0, 2), "z": (0, 1)}[axis]
+    m[:, i, i], m[:, i, j], m[:, j, i], m[:, j, j] = torch.cos(a), -torch.sin(a), torch.sin(a), torch.cos(a)
+    return m
+
+
 def timed(fn, reps: int) -> float:
     """Median ms of ``fn()`` over ``reps`` calls (after one warm-up call)."""
     fn()
@@ -82,6 +91,19 @@ def main(argv: list[str] | None = None) -> dict:
     out["main_shell"] = {"n_vertices": int(keep.sum()), "n_triangles": len(body_faces),
                          "label_ms": timed(lambda: body_lab.label(body), args.reps),
                          "verdict_ms": timed(lambda: body_lab.verdict(body), args.reps)}
+    # the body's own pairs by the bone that moves each vertex most
+    vertex_bone = model.vertex_bone_indices.numpy()[np.arange(len(rest)),
+                                                    model.vertex_bone_weights.numpy().argmax(1)]
+    own_vertices = np.unique(faces[np.unique(pairs[own])])
+    names, counts = np.unique([model.bone_labels[b] for b in vertex_bone[own_vertices]], return_counts=True)
+    out["rest_pose"]["main_shell_own_pair_vertices_by_bone"] = dict(zip(names.tolist(), counts.tolist()))
+    # the little toes turned out a little (mirrored): does the main shell's rest pose come free?
+    for axis, deg in (("y", 6.0), ("z", 6.0), ("x", 6.0), ("x", 12.0)):
+        pose = {"toe5-1.L": bone_rotation(axis, deg), "toe5-1.R": bone_rotation(axis, -deg)}
+        with torch.no_grad():
+            posed = model(pose_parameters=pose)["vertices"][0].double().numpy()[keep]
+        out["main_shell"][f"pairs_little_toes_{axis}{deg:+.0f}deg"] = int(body_lab.label(posed).n_pairs)
+    out["main_shell"]["pairs_rest"] = int(body_lab.label(body).n_pairs)
     out["full_mesh"] = {"label_ms": timed(lambda: lab.label(rest), args.reps),
                         "verdict_ms": timed(lambda: lab.verdict(rest), args.reps)}
     args.out.write_text(json.dumps(out, indent=2))
