@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 	test -x $(PYTHON) || $(PY) -m venv $(VENV)
 	$(PYTHON) -m pip install --quiet --upgrade pip
 	$(PYTHON) -c "import torch" 2>/dev/null || $(PYTHON) -m pip install "$(TORCH)"
-	$(PYTHON) -m pip install --quiet -e ".[dev,export]"
+	$(PYTHON) -m pip install --quiet -e ".[dev,export,body]"
 	touch $(STAMP)
 
 install: $(STAMP)  ## create .venv with a CPU torch and install neuralcol (editable, dev and export extras)

@@ -65,7 +65,9 @@ def _flagged(verts: np.ndarray, faces: np.ndarray) -> int:
 
 
 def test_registry():
-    assert GENERATORS == {"proc_hand": make_proc_hand, "proc_cloth": make_proc_cloth}
+    from neuralcol.data.procedural.body import make_anny_body
+
+    assert GENERATORS == {"proc_hand": make_proc_hand, "proc_cloth": make_proc_cloth, "anny_body": make_anny_body}
 
 
 @pytest.mark.parametrize("name", NAMES)

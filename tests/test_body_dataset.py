@@ -1,0 +1,73 @@
+"""The anny body data set (issue 31): anny's main shell posed in action sequences, deterministic, cached, valid."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from neuralcol.errors import UserInputError
+
+anny = pytest.importorskip("anny")  # the `body` extra (make install installs it)
+
+from neuralcol.data.procedural.body import ACTIONS, action_angles, make_anny_body  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def stride_and_crouch():
+    """20 poses: a walking stride (sequence 0) and a crouch and jump (sequence 1)."""
+    return make_anny_body(20, seed=0)
+
+
+def test_main_shell_topology_and_determinism(stride_and_crouch):
+    verts, faces = stride_and_crouch
+    assert verts.shape == (20, 13348, 3) and faces.shape == (26692, 3) and verts.dtype == np.float64
+    assert faces.min() == 0 and faces.max() == 13347 and np.isfinite(verts).all()
+    again, faces_again = make_anny_body(20, seed=0)
+    np.testing.assert_array_equal(again, verts)
+    np.testing.assert_array_equal(faces_again, faces)
+    other, _ = make_anny_body(20, seed=1)
+    assert np.abs(other - verts).max() > 1e-3  # another seed: other amplitudes
+
+
+def test_rest_frame_is_free_and_the_crouch_touches(stride_and_crouch):
+    """Pose 0 (the stride's first frame: the rest pose with the little toes turned out) is collision-free, which
+    anny's own rest pose is not (each little toe cuts toe 4); the deep crouch brings thighs and calves together."""
+    from neuralcol.collision.labeler import ExactLabeler
+
+    verts, faces = stride_and_crouch
+    lab = ExactLabeler(faces, verts[0])
+    assert not lab.label(verts[0]).collides
+    untouched, _ = make_anny_body(1, seed=0, toe_out_deg=0.0)
+    assert lab.label(untouched[0]).n_pairs > 0
+    assert lab.label(verts[13]).collides  # sequence 1, frame 3: deep in the crouch
+
+
+def test_loader_caches_and_validates(tmp_path):
+    from neuralcol.data.datasets import load_procedural_dataset
+
+    ds = load_procedural_dataset("anny_body", n_poses=4, seed=0, cache_dir=tmp_path)
+    assert ds.vertices.shape == (4, 13348, 3) and ds.faces.shape == (26692, 3)
+    assert len(list(tmp_path.glob("anny_body_n4_s0_*.npz"))) == 1
+    again = load_procedural_dataset("anny_body", n_poses=4, seed=0, cache_dir=tmp_path)
+    np.testing.assert_array_equal(again.vertices.numpy(), ds.vertices.numpy())
+
+
+def test_every_action_moves_the_body():
+    t = np.linspace(0, 1, 5)
+    for action in ACTIONS:
+        angles = action_angles(action, t, np.ones(4), 1)
+        assert angles and max(np.abs(a).max() for a in angles.values()) >= 20, action
+    with pytest.raises(ValueError, match="action 'fly'"):
+        action_angles("fly", t, np.ones(4), 1)
+
+
+def test_bad_settings_and_missing_anny_are_one_clear_line(monkeypatch):
+    with pytest.raises(UserInputError, match=r"unknown setting\(s\) \['wings'\]"):
+        make_anny_body(2, wings=2)
+    from neuralcol.data.procedural import body
+
+    monkeypatch.setitem(sys.modules, "anny", None)  # `import anny` now raises ImportError
+    with pytest.raises(UserInputError, match="pip install anny"):
+        body._anny()
