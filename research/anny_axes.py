@@ -8,17 +8,14 @@ plane, y raises it sideways, z barely shows (twist); upperleg01 x swings the leg
 twist; spine03 x bends forward, y sideways, z turns the torso.
 """
 
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).parent))
-from anny_probe import bone_rotation, shells  # noqa: E402
-
-from neuralcol.metrics.plots import render_mesh_png  # noqa: E402
+from neuralcol.data.procedural.body import bone_rotation, main_shell
+from neuralcol.metrics.plots import render_mesh_png
 
 BONES = ("upperarm01.L", "upperleg01.L", "spine03")
 if __name__ == "__main__":
@@ -28,9 +25,7 @@ if __name__ == "__main__":
     faces = m.get_triangular_faces().numpy().astype(np.int64)
     with torch.no_grad():
         rest = m(pose_parameters=None)["vertices"][0].double().numpy()
-    comp = shells(faces, len(rest))
-    keep = comp == np.argmax(np.bincount(comp))
-    bf = (np.cumsum(keep) - 1)[faces[keep[faces].all(1)]]
+    keep, bf = main_shell(faces, len(rest))
     col = np.tile([0.7, 0.7, 0.8, 1.0], (int(keep.sum()), 1))
     tmp = Path(tempfile.mkdtemp())
     panels = []

@@ -16,25 +16,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 import torch
-from scipy.sparse.csgraph import connected_components
 
-
-def shells(faces: np.ndarray, n_vertices: int) -> np.ndarray:
-    """(V,) int connected-shell id of each vertex (edges of the triangles)."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    g = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_vertices, n_vertices))
-    return connected_components(g, directed=False)[1]
-
-
-def bone_rotation(axis: str, degrees: float) -> torch.Tensor:
-    """(1, 4, 4) homogeneous rotation about the bone's local ``axis`` (anny's local-bone pose parameters)."""
-    a = torch.tensor([np.deg2rad(degrees)], dtype=torch.float32)
-    m = torch.eye(4).repeat(1, 1, 1)
-    i, j = {"x": (1, 2), "y": (0, 2), "z": (0, 1)}[axis]
-    m[:, i, i], m[:, i, j], m[:, j, i], m[:, j, j] = torch.cos(a), -torch.sin(a), torch.sin(a), torch.cos(a)
-    return m
+from neuralcol.data.procedural.body import bone_rotation, shells
 
 
 def timed(fn, reps: int) -> float:

@@ -50,21 +50,33 @@ def _anny():
 def _model_and_shell():
     """anny's default body model and the main shell: (model, keep (V,) bool, faces (F', 3) int64 of the shell)."""
     import torch
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
 
     model = _anny().Anny()
     faces = model.get_triangular_faces().cpu().numpy().astype(np.int64)
     with torch.no_grad():
         n = model(pose_parameters=None)["vertices"].shape[1]
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    _, comp = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)
-    keep = comp == np.argmax(np.bincount(comp))
-    shell_faces = (np.cumsum(keep) - 1)[faces[keep[faces].all(1)]]
+    keep, shell_faces = main_shell(faces, n)
     return model, keep, shell_faces
 
 
-def _rotation(axis: str, degrees: np.ndarray):
+def shells(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """(V,) int connected-shell id of each vertex (shells joined by triangle edges)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    g = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_vertices, n_vertices))
+    return connected_components(g, directed=False)[1]
+
+
+def main_shell(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """The largest shell: keep (V,) bool and its faces (F', 3) int64 renumbered to the kept vertices."""
+    comp = shells(faces, n_vertices)
+    keep = comp == np.argmax(np.bincount(comp))
+    return keep, (np.cumsum(keep) - 1)[faces[keep[faces].all(1)]]
+
+
+def bone_rotation(axis: str, degrees):
     """(B, 4, 4) float32 homogeneous rotations about a bone's local ``axis`` by ``degrees`` (B,)."""
     import torch
 
@@ -154,7 +166,7 @@ def make_anny_body(n_poses: int = 150, seed: int = 0, **geometry) -> tuple[np.nd
     angles[("toe5-1.L", "y")], angles[("toe5-1.R", "y")] = np.full(n, toe), np.full(n, -toe)
     pose: dict[str, torch.Tensor] = {}
     for (bone, axis), deg in sorted(angles.items()):  # rotations of one bone compose in x, y, z order
-        rot = _rotation(axis, deg)
+        rot = bone_rotation(axis, deg)
         pose[bone] = pose[bone] @ rot if bone in pose else rot
     with torch.no_grad():
         verts = model(pose_parameters=pose)["vertices"].double().cpu().numpy()
