@@ -207,3 +207,20 @@ def test_cache_key_ignores_settings_spelled_out_at_their_neutral_value(tube_data
         changed = {k: dict(v) if isinstance(v, dict) else v for k, v in spelled.items()}
         (changed if group is None else changed[group])[name] = value
         assert key(changed) != key(base), (group, name)
+
+
+def test_no_level2_trains_no_second_stage(tube_dataset, tube_space, tmp_path):
+    """``level2_dim: 0`` (SCAPE's and anny_body's presets) is Z_all = Z_0: no level-2 module and no stage-2 fit
+    (before issue 31 code-free level-2 decoders trained for level2.epochs, learning a constant offset)."""
+    _, _, feats, cfg, _ = tube_space
+    latent = {**dict(LATENT), "level2_dim": 0}
+    one = OmegaConf.merge(cfg, {"level1": {"epochs": 5}, "level2": {"epochs": 1}})
+    many = OmegaConf.merge(cfg, {"level1": {"epochs": 5}, "level2": {"epochs": 400}})
+    a, rep_a, _ = train_or_load_latent_space(tube_dataset, feats, one, latent, 0, None)
+    b, rep_b, _ = train_or_load_latent_space(tube_dataset, feats, many, latent, 0, None)
+    assert a.net.level2 is None and a.dim == int(latent["n_components"])
+    # skipped, 1 and 400 level-2 epochs give the same model
+    z = a.sample(3, torch.Generator().manual_seed(0))
+    torch.testing.assert_close(a.decode(z), b.decode(z), rtol=0, atol=0)
+    path = a.save(tmp_path / "l1.pt")
+    assert LatentSpace.load(path).net.level2 is None

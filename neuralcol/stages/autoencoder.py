@@ -228,14 +228,15 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
     part = connect_partition(raw_part, edges, k)
     report_part = PartitionReport(np.bincount(part, minlength=k).tolist(), count_pieces(raw_part, edges, k),
                                   count_pieces(part, edges, k))
-    net.level2 = Level2Autoencoders(torch.as_tensor(part), k, latent_dim=int(lat["level2_dim"]),
-                                    hidden=int(l2cfg["hidden"]))
-    stage2 = AutoencoderLitModule(net, 2, optimizer=instantiate(ae["optimizer"], lr=l2cfg["lr"]),
-                                  scheduler=_scheduler(ae, int(l2cfg["epochs"])),
-                                  code_noise=float(l2cfg.get("code_noise", 0.0)),
-                                  interp_ratio=float(l2cfg.get("interp_ratio", 0.0)), interp_t=interp_t)
-    if int(l2cfg["epochs"]) > 0:
-        _trainer(ae, int(l2cfg["epochs"]), _stage_logger(logger, "autoencoder_level2")).fit(stage2, dm)
+    if int(lat["level2_dim"]) > 0:  # level2_dim 0: no level 2 at all (Z_all = Z_0), and no stage-2 training
+        net.level2 = Level2Autoencoders(torch.as_tensor(part), k, latent_dim=int(lat["level2_dim"]),
+                                        hidden=int(l2cfg["hidden"]))
+        stage2 = AutoencoderLitModule(net, 2, optimizer=instantiate(ae["optimizer"], lr=l2cfg["lr"]),
+                                      scheduler=_scheduler(ae, int(l2cfg["epochs"])),
+                                      code_noise=float(l2cfg.get("code_noise", 0.0)),
+                                      interp_ratio=float(l2cfg.get("interp_ratio", 0.0)), interp_t=interp_t)
+        if int(l2cfg["epochs"]) > 0:
+            _trainer(ae, int(l2cfg["epochs"]), _stage_logger(logger, "autoencoder_level2")).fit(stage2, dm)
     net.eval().cpu()
     with torch.no_grad():
         z = net.encode(x)
@@ -282,6 +283,11 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
     ae, lat = as_dict(ae_cfg), as_dict(latent_cfg)
     train_keys = {k: v for k, v in ae.items() if k not in ("progress_bar", "accelerator", "val_every")}
     train_keys["threads"] = "machine" if threads is None else int(threads)
+    if int(lat["level2_dim"]) == 0:
+        # before issue 31 a level2_dim-0 space still trained a level-2 stage (code-free decoders: a constant offset
+        # per sub-domain, vertex effect ~4e-4 of the diagonal on SCAPE) for level2.epochs; such spaces are not
+        # reused for the stage-free model
+        train_keys["level2"] = "none"
     key = autoencoder_cache_key(ds, feats.reference_index, feats.acap.settings, train_keys, lat, seed)
     path = CacheDir(cache_dir).latent_space(key) if cache_dir else None
     if path is None:
