@@ -20,13 +20,28 @@ from pathlib import Path
 
 import torch
 
-from bench import acap, cascade, dask_pool, export, fcl_backend, gpu, labeler, memory, neural, pipeline, pool, training
+from bench import (
+    acap,
+    cascade,
+    dask_pool,
+    export,
+    fcl_backend,
+    gpu,
+    labeler,
+    labeler_body,
+    memory,
+    neural,
+    pipeline,
+    pool,
+    training,
+)
 from bench.context import HERE, BenchContext, scape_config
 from bench.markdown import write_markdown
 
 # name (--only, results.json "sections") -> module whose measure(ctx) returns {key: summary}; run in this order
-BENCHES = {"acap": acap, "labeler": labeler, "pool": pool, "pipeline": pipeline, "dask": dask_pool, "fcl": fcl_backend,
-           "neural": neural, "cascade": cascade, "training": training, "memory": memory, "gpu": gpu, "export": export}
+BENCHES = {"acap": acap, "labeler": labeler, "labeler_body": labeler_body, "pool": pool, "pipeline": pipeline,
+           "dask": dask_pool, "fcl": fcl_backend, "neural": neural,
+           "cascade": cascade, "training": training, "memory": memory, "gpu": gpu, "export": export}
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
