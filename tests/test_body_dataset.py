@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -71,3 +72,30 @@ def test_bad_settings_and_missing_anny_are_one_clear_line(monkeypatch):
     monkeypatch.setitem(sys.modules, "anny", None)  # `import anny` now raises ImportError
     with pytest.raises(UserInputError, match="pip install anny"):
         body._anny()
+
+
+def test_pipeline_end_to_end_on_a_body_subset(tmp_path):
+    """The whole run at body size (13 348 vertices, 26 692 triangles) on 20 poses with the tiny presets and fewer
+    samples: every stage (data labels, autoencoder, D_c, detector, handler, cascade, mesh detector, realistic set,
+    speed chart) meets the large mesh once in ``make test``."""
+    from hydra import compose, initialize_config_dir
+
+    from experiments.run import run
+
+    conf = Path(__file__).resolve().parents[1] / "conf"
+    with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
+        cfg = compose("config", overrides=[
+            "dataset=anny_body", "dataset.source.n_poses=20", f"paths.cache_dir={tmp_path}/cache",
+            "n_example_meshes=1", "autoencoder=tiny", "detector=tiny", "detector.n_init=48", "detector.n_aug=24",
+            "detector.max_rounds=1", "detector.test_size=64", "detector.cascade.calibration_size=64",
+            "realistic=tiny", "realistic.n_acap_interp=12", "realistic.n_vertex_interp=6", "realistic.n_perturbed=6",
+            "realistic.handler_inputs=2", "mesh_detector=tiny", "mesh_detector.train_set.n_acap_interp=12",
+            "mesh_detector.train_set.n_vertex_interp=6", "mesh_detector.train_set.n_perturbed=6",
+            "speed_accuracy=tiny", "handler.n_inputs=4", "labeling.pool.workers=0", "labeling.pool.progress=false"])
+    m = run(cfg, tmp_path / "run")
+    assert (m["dataset"]["n_meshes"], m["dataset"]["n_vertices"], m["dataset"]["n_faces"]) == (20, 13348, 26692)
+    assert m["autoencoder"]["latent_dim"] == 16 and m["latent"]["dim"] == 16  # no level 2 (conf/dataset/anny_body)
+    assert [r["dataset_size"] for r in m["rounds"]] == [48, 72]
+    assert m["detector"]["test_set"]["n"] == 64 and 0 <= m["rounds"][-1]["accuracy"] <= 1
+    assert m["mesh_detector"]["n_dc"] == 72 and m["realistic"]["n"] > 0
+    assert (tmp_path / "run" / "metrics.json").is_file() and (tmp_path / "run" / "speed_accuracy.png").is_file()

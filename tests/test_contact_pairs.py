@@ -107,6 +107,20 @@ def test_select_pairs_max_per_vertex_spreads_the_pairs():
         select_contact_pairs(v[None], np.array([True]), f, radius=1.02, min_hops=1, n_pairs=5, max_per_vertex=0)
 
 
+def test_select_pairs_folding_bounds_memory_and_changes_nothing():
+    """Issue 31: the close pairs are folded into running scores every ``fold_at`` pairs (a body mesh has ~10^6 close
+    pairs per example; held all at once they took 20 GB). Any fold size gives the pairs of one fold."""
+    v, f = two_cubes(0.05)
+    rng = np.random.default_rng(0)
+    meshes = v[None] + rng.normal(scale=0.05, size=(12, *v.shape))
+    collides = rng.random(12) < 0.4
+    kw = dict(radius=1.02, min_hops=1, n_pairs=30, colliding_weight=3.0)
+    once = select_contact_pairs(meshes, collides, f, **kw, fold_at=10**9)
+    for fold_at in (1, 7, 50):
+        np.testing.assert_array_equal(select_contact_pairs(meshes, collides, f, **kw, fold_at=fold_at), once)
+    assert 10 < len(once) <= 30
+
+
 def test_mesh_detector_saves_and_loads_without_pickles(tmp_path):
     from neuralcol.nn.mesh_detector import MeshDetector, load_mesh_detector, mesh_logits, save_mesh_detector
 

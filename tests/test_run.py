@@ -45,6 +45,20 @@ def test_scape_cpu_preset_labels_38000_samples():
     assert (cpu.n_init, cpu.n_aug, cpu.max_rounds, cpu.test_size) == (8000, 6000, 5, 20000)
 
 
+def test_anny_body_picks_the_large_mesh_presets_and_the_command_line_still_wins():
+    """Issue 31: a data set's defaults may pick the evaluation stages' presets (conf/config.yaml lists dataset after
+    them); anny_body takes the *large_mesh ones and its own calibration size, other data sets keep the defaults."""
+    body, scape = _compose(["dataset=anny_body"]), _compose(["dataset=scape"])
+    assert (body.realistic.n_acap_interp, body.mesh_detector.train_set.n_acap_interp, body.speed_accuracy.n_exact,
+            body.detector.cascade.calibration_size) == (340, 340, 100, 500)
+    assert (scape.realistic.n_acap_interp, scape.mesh_detector.train_set.n_acap_interp, scape.speed_accuracy.n_exact,
+            scape.detector.cascade.calibration_size) == (1500, 1500, 300, 2000)
+    assert body.realistic.t_range == scape.realistic.t_range  # the rest of default.yaml is kept
+    tiny = _compose(["dataset=anny_body", "realistic=tiny", "realistic.per_class=3"])
+    assert (tiny.realistic.n_acap_interp, tiny.realistic.per_class) == (48, 3)
+    assert _compose(["experiment=cpu_anny_body"]) == body
+
+
 def test_paper_datasets_present():
     assert {"scape", "swing", "jump", "skirt", "hand", "proc_hand", "proc_cloth"} <= set(DATASETS)
 

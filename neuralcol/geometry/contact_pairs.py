@@ -42,7 +42,7 @@ def hop_neighbourhood(faces: np.ndarray, n_vertices: int, hops: int) -> sp.csr_m
 
 def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.ndarray, radius: float,
                          min_hops: int, n_pairs: int, colliding_weight: float = 3.0,
-                         max_per_vertex: int | None = None) -> np.ndarray:
+                         max_per_vertex: int | None = None, fold_at: int = 20_000_000) -> np.ndarray:
     """The P vertex pairs that most often come close in ``meshes`` while far apart on the mesh.
 
     Args:
@@ -56,6 +56,8 @@ def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.nda
         colliding_weight: weight of a colliding mesh's close pairs.
         max_per_vertex: a vertex takes part in at most this many chosen pairs (greedily, most frequent first),
             so the pairs spread over more of the surface; None: no limit.
+        fold_at: close pairs buffered before they are merged into the running scores (bounds the memory; the
+            result does not depend on it).
 
     Returns:
         (P', 2) int64 pairs (i < j), P' <= P, most frequent first (ties by index).
@@ -65,7 +67,12 @@ def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.nda
         raise ValueError(f"meshes have shape {meshes.shape}, expected (N, V, 3)")
     n_vert = meshes.shape[1]
     near = hop_neighbourhood(faces, n_vert, min_hops)
-    keys, weights = [], []
+    # scores summed as the meshes come, folded into (distinct pairs, score) whenever the buffered pairs pass
+    # fold_at: memory follows the distinct pairs, not meshes x pairs per mesh (a 13k-vertex body has ~10^6 close
+    # pairs per mesh; 1 600 examples held at once took 20 GB, issue 31). The weights are small whole numbers, so
+    # the sums are exact in any order and the result is the one of a single fold.
+    uniq, score = np.zeros(0, np.int64), np.zeros(0)
+    keys, weights, n_buffered = [], [], 0
     for v, c in zip(meshes, np.asarray(collides, bool)):
         pr = cKDTree(v).query_pairs(float(radius), output_type="ndarray")
         if len(pr) == 0:
@@ -73,10 +80,13 @@ def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.nda
         pr = np.sort(pr[np.asarray(near[pr[:, 0], pr[:, 1]]).ravel() == 0], axis=1)
         keys.append(pr[:, 0] * n_vert + pr[:, 1])
         weights.append(np.full(len(pr), float(colliding_weight) if c else 1.0))
-    if not keys:
+        n_buffered += len(pr)
+        if n_buffered >= fold_at:
+            uniq, score = _fold(uniq, score, keys, weights)
+            keys, weights, n_buffered = [], [], 0
+    uniq, score = _fold(uniq, score, keys, weights)
+    if len(uniq) == 0:
         return np.zeros((0, 2), np.int64)
-    uniq, inverse = np.unique(np.concatenate(keys), return_inverse=True)
-    score = np.bincount(inverse, weights=np.concatenate(weights))
     order = np.lexsort((uniq, -score))  # by score, ties by pair
     if max_per_vertex is None:
         order = order[: int(n_pairs)]
@@ -95,6 +105,14 @@ def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.nda
                     break
         order = np.asarray(keep, np.int64)
     return np.stack([uniq[order] // n_vert, uniq[order] % n_vert], 1).astype(np.int64).reshape(-1, 2)
+
+
+def _fold(uniq: np.ndarray, score: np.ndarray, keys: list, weights: list) -> tuple[np.ndarray, np.ndarray]:
+    """Merge buffered pair keys and weights into the sorted distinct keys ``uniq`` and their summed ``score``."""
+    if not keys:
+        return uniq, score
+    uniq, inverse = np.unique(np.concatenate([uniq, *keys]), return_inverse=True)
+    return uniq, np.bincount(inverse, weights=np.concatenate([score, *weights]), minlength=len(uniq))
 
 
 def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
