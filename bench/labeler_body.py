@@ -134,8 +134,7 @@ def measure(ctx: BenchContext) -> dict:
         coll = _timed(lab, poses[n_each:], faces, reps)["full_label_ms"]
         out.update({f"body_{k}": v for k, v in body.items()})
         out["body_full_label_free_ms"], out["body_full_label_colliding_ms"] = free, coll
-        out["body_facts"] = {"triangles": int(len(faces)), "vertices": int(poses.shape[1]), "poses": idx,
-                             "colliding": idx[n_each:]}
+        ctx.notes["labeler_body"] = (f"anny_body poses {idx} ({len(faces)} triangles; the last {n_each} collide)")
     ds = ctx.scape
     verts = ds.vertices.numpy().astype(np.float64)
     lab0 = ExactLabeler(ds.faces.numpy(), verts[0])
@@ -147,6 +146,6 @@ def measure(ctx: BenchContext) -> dict:
         raise RuntimeError(f"{flagged} collision-free SCAPE meshes flagged after refinement to {len(sf)} triangles")
     slab.label(sv[1])
     out.update({f"scape_at_body_size_{k}": v for k, v in _timed(slab, sv[1:], sf, reps).items()})
-    out["scape_at_body_size_facts"] = {"triangles": int(len(sf)), "vertices": int(sv.shape[1]),
-                                       "poses": [ds.names[i] for i in free]}
+    ctx.notes["labeler_body"] = (ctx.notes.get("labeler_body", "") + f"; SCAPE poses {[ds.names[i] for i in free]} "
+                                 f"refined to {len(sf)} triangles, {sv.shape[1]} vertices")
     return out
