@@ -35,6 +35,7 @@ from neuralcol.pipeline import RunContext
 from neuralcol.rundir import RunDir
 from neuralcol.samples.cache import shared_test_set
 from neuralcol.stages.autoencoder import train_or_load_latent_space
+from neuralcol.stages.box_check import check_box, probe_share
 from neuralcol.stages.cascade import calibrate, cascade_stage, cascade_table, log_cascade
 from neuralcol.stages.data import acap_round_trip, dataset_labels
 from neuralcol.stages.detector import inference_us, train_detector
@@ -92,8 +93,10 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     sample_labeler = ctx.sample_labeler()
     t0 = time.perf_counter()
     settings = alm_settings(cfg.handler.alm)
+    ref_spaces, ref_errors = ctx.references  # PCA at the same |Z_all| (issue 40)
     with ctx.pool(sample_labeler) as pool:
         oracle = ctx.oracle(pool)
+        box_probe = box_stage(space, ref_spaces, pool, cfg)
         # inputs of the collision handler: the first colliding rows of the shared test set
         test, _, _ = shared_test_set(oracle, cfg.detector, ae_report["cache_key"], cfg.paths.cache_dir)
         pick = np.flatnonzero(test.pd > 0)[: int(cfg.handler.n_inputs)]
@@ -141,7 +144,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
             realistic_metrics, real_arrays = evaluate_realistic(
                 space, net, meshes, pd_real, pool, float(sample_labeler.eps), cfg.realistic, settings,
                 list(cfg.handler.verify_margins), int(cfg.handler.batch_size), mesh_net=mesh_net,
-                repair=repair_from_config(cfg))
+                repair=repair_from_config(cfg), references=ref_spaces)
             realistic_metrics.update({"from_cache": real_cached, "stage_seconds": time.perf_counter() - t_r})
             np.savez_compressed(rd.realistic_predictions, **real_arrays)
             log_realistic(logger, realistic_metrics, det["rounds"][-1]["dataset_size"])
@@ -174,9 +177,9 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
                  "decode_ms_per_mesh": acap_metrics["decode_ms_per_mesh"]},
         "dataset_labels": label_metrics,
         "autoencoder": {**{k_: v for k_, v in ae_report.items() if k_ not in ("train_index", "val_index")},
-                        "from_cache": ae_cached, "stage_seconds": t_ae},
+                        "from_cache": ae_cached, "stage_seconds": t_ae, "references": ref_errors},
         "latent": {"dim": space.dim, "n_parts": space.n_parts,
-                   "uniform_collision_fraction": det["detector"]["test_set"]["base_rate"]},
+                   "uniform_collision_fraction": det["detector"]["test_set"]["base_rate"], "box_probe": box_probe},
         "detector": {**det["detector"], "stage_seconds": t_det},
         "rounds": det["rounds"],
         "handling": handling_metrics,
@@ -194,8 +197,44 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         metrics["speed_accuracy"] = sa
         plot_speed_accuracy(sa["points"], rd.speed_accuracy_png, f"{cfg.dataset.name}, {cfg.method.name}, seed "
                             f"{cfg.seed}: speed against accuracy (torch threads: {sa['threads']})")
+    log_latent(run_dir, metrics)
     rd.metrics.write_text(json.dumps(metrics, indent=2))
     return metrics
+
+
+def box_stage(space, ref_spaces: dict, pool, cfg: DictConfig) -> dict | None:
+    """Label a probe of U(Z) and of the references' boxes; stop on a degenerate box (:mod:`~neuralcol.stages.
+    box_check`). Returns ``{"space": probe, "references": {name: probe}}`` or None when ``box_check`` is off."""
+    bc = cfg.get("box_check")
+    if bc is None or not bc.enabled:
+        return None
+    n, seed = int(bc.n_probe), int(bc.seed)
+    probe = probe_share(space, pool, n, seed, desc="probing the box Z")
+    refs = {name: probe_share(ref, pool, n, seed, desc=f"probing the box of {name}")
+            for name, ref in ref_spaces.items()} if bc.references else {}
+    check_box(probe, float(bc.min_class_share), str(cfg.dataset.name), refs)
+    return {"space": probe, "references": refs, "min_class_share": float(bc.min_class_share)}
+
+
+def log_latent(run_dir: Path, metrics: dict) -> None:
+    """TensorBoard scalars of the latent space next to its PCA references (run ``latent``, step 0)."""
+    ae, la = metrics["autoencoder"], metrics["latent"]
+    scalars = {"latent/train_error": ae["train_mean_vertex_error"], "latent/val_error": ae["val_mean_vertex_error"],
+               "latent/uz_collision_share": la["uniform_collision_fraction"]}
+    for name, ref in (ae.get("references") or {}).items():
+        scalars[f"latent/{name}_train_error"] = ref.get("train_mean_vertex_error")
+        scalars[f"latent/{name}_val_error"] = ref.get("val_mean_vertex_error")
+    for name, p in ((la.get("box_probe") or {}).get("references") or {}).items():
+        scalars[f"latent/{name}_box_collision_share"] = p.get("collision_share")
+    rt = ((metrics.get("realistic") or {}).get("round_trip") or {})
+    scalars["latent/round_trip_agreement"] = rt.get("agreement")
+    for name, agree in (rt.get("references") or {}).items():
+        scalars[f"latent/{name}_round_trip_agreement"] = agree.get("agreement")
+    logger = stage_logger(run_dir, "latent")
+    for k, v in scalars.items():
+        if v is not None and np.isfinite(v):
+            logger.experiment.add_scalar(k, float(v), global_step=0)
+    logger.finalize("success")
 
 
 def log_realistic(logger, m: dict, step: int) -> None:
@@ -248,6 +287,39 @@ def print_realistic(r: dict | None) -> None:
                   f"{ro['displacement_max_frac']:.2%} (median over meshes)")
 
 
+def latent_reference_lines(metrics: dict) -> list[str]:
+    """The latent space against its PCA references: held-out error, box share, round-trip label agreement."""
+    ae, la = metrics["autoencoder"], metrics["latent"]
+    refs = ae.get("references") or {}
+    if not refs:
+        return []
+    probe = la.get("box_probe") or {}
+    rt = (metrics.get("realistic") or {}).get("round_trip") or {}
+
+    def pct(x):
+        return "n/a" if x is None else f"{x:.2%}"
+
+    def share(p):
+        return "n/a" if not p or p.get("collision_share") is None else f"{p['collision_share']:.1%}"
+
+    def agree(a):
+        return "n/a" if not a or a.get("agreement") is None else f"{a['agreement']:.1%}"
+
+    name = "pca" if ae.get("kind") == "pca" else "autoencoder"
+    out = ["latent space against PCA at the same |Z_all| (fit on the same training meshes):",
+           "                 train err  held-out err  U(Z) collides  round trip keeps label",
+           f"  {name + ' (run)':<15} {pct(ae['train_mean_vertex_error']):>9}  {pct(ae['val_mean_vertex_error']):>12}"
+           f"  {share(probe.get('space')):>13}  {agree(rt):>22}"]
+    for ref, e in refs.items():
+        if "reason" in e:
+            out.append(f"  {ref:<15} n/a: {e['reason']}")
+            continue
+        out.append(f"  {ref:<15} {pct(e['train_mean_vertex_error']):>9}  {pct(e['val_mean_vertex_error']):>12}"
+                   f"  {share((probe.get('references') or {}).get(ref)):>13}"
+                   f"  {agree((rt.get('references') or {}).get(ref)):>22}")
+    return out
+
+
 def print_summary(metrics: dict, run_dir: Path) -> None:
     d, a = metrics["dataset"], metrics["acap"]
     print(f"\ndata set {d['name']}: {d['n_meshes']} meshes, {d['n_vertices']} vertices, {d['n_faces']} faces")
@@ -262,6 +334,8 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
     print(f"autoencoder{' (cached)' if ae['from_cache'] else ''}: |Z_all| = {la['dim']}, {la['n_parts']} sub-domains "
           f"(pieces {ae['pieces']}); mean vertex error train {ae['train_mean_vertex_error']:.2%}, "
           f"val {val:.2%} of the bbox diagonal" if val is not None else "")
+    for line in latent_reference_lines(metrics):
+        print(line)
     dt = metrics["detector"]
     print(f"U(Z): {la['uniform_collision_fraction']:.1%} of the {dt['test_set']['n']} test samples self-collide")
     print(f"detector ({dt['method']}), stopped by {dt['stopped_by']}:")

@@ -30,7 +30,7 @@ from neuralcol.nn.latent_space import LatentSpace
 from neuralcol.rundir import CacheDir, RunDir
 from neuralcol.samples.cache import samples_cache_dir
 from neuralcol.samples.oracle import LatentOracle
-from neuralcol.stages.autoencoder import train_or_load_latent_space
+from neuralcol.stages.autoencoder import reference_spaces, train_or_load_latent_space
 
 
 class LatentStage(NamedTuple):
@@ -120,6 +120,14 @@ class RunContext:
     @property
     def space(self) -> LatentSpace:
         return self.latent_space().space
+
+    @cached_property
+    def references(self) -> tuple[dict, dict]:
+        """The latent space's PCA references (issue 40): ``({name: PCALatentSpace}, {name: errors})`` for PCA of the
+        vertex positions and of the ACAP features at the same |Z_all| and training meshes
+        (:func:`~neuralcol.stages.autoencoder.reference_spaces`)."""
+        stage = self.latent_space()
+        return reference_spaces(self.dataset, self.features, stage.space, stage.report)
 
     # ------------------------------------------------------------------ labels
     def labeler(self, partition: np.ndarray | None = None):

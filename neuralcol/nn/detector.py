@@ -246,8 +246,11 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
     return DetectorLosses(total, l_pd, l_r, l_ce, l_b)
 
 
-def decoder_code_features(space) -> tuple[torch.Tensor, torch.Tensor, str]:
-    """The first layer of the latent space's level-1 decoder, ``(w (K, H), b (K, H), activation)``."""
+def decoder_code_features(space) -> tuple[torch.Tensor, torch.Tensor, str] | None:
+    """The first layer of the latent space's level-1 decoder, ``(w (K, H), b (K, H), activation)``; None for a
+    space without one (a PCA space, ``autoencoder=pca``: its decoder is linear, the codes say it all)."""
+    if getattr(space, "net", None) is None:
+        return None
     l1 = space.net.level1
     return l1.comp_in_w.detach().cpu().float(), l1.comp_in_b.detach().cpu().float(), l1.activation
 

@@ -71,13 +71,23 @@ class DecoderExport(nn.Module):
         if output not in DECODER_OUTPUTS:
             raise ValueError(f"output={output!r}; use one of {DECODER_OUTPUTS}")
         self.output = output
-        self.net = copy.deepcopy(space.net).cpu().float().eval()
-        self.register_buffer("norm_center", space.norm_center.detach().cpu().float().clone())
-        self.register_buffer("norm_half_range", space.norm_half_range.detach().cpu().float().clone())
-        self.norm_bound = float(space.norm_bound)
+        # a PCA space (autoencoder=pca, issue 40) has no network: its decoder is mean + z W
+        self.basis = getattr(space, "basis", None) if getattr(space, "net", None) is None else None
         acap = space.acap
         self.n_vertices = acap.n_vertices
-        if output == "vertices":
+        if self.basis is not None:
+            if self.basis == "vertex" and output == "features":
+                raise ValueError("a vertex-PCA latent space decodes to vertices, not ACAP features; export it with "
+                                 "output='vertices'")
+            self.register_buffer("pca_mean", space.pca_mean.detach().cpu().float().clone())
+            self.register_buffer("pca_components", space.pca_components.detach().cpu().float().clone())
+            self.register_buffer("rest_centroid", space.rest_vertices.detach().cpu().mean(0).float().clone())
+        else:
+            self.net = copy.deepcopy(space.net).cpu().float().eval()
+            self.register_buffer("norm_center", space.norm_center.detach().cpu().float().clone())
+            self.register_buffer("norm_half_range", space.norm_half_range.detach().cpu().float().clone())
+            self.norm_bound = float(space.norm_bound)
+        if output == "vertices" and self.basis != "vertex":
             self.register_buffer("edge_i", acap._edge_i.clone())
             self.register_buffer("edge_j", acap._edge_j.clone())
             incident, sign = incidence_table(acap.edges, acap.n_vertices)
@@ -89,9 +99,14 @@ class DecoderExport(nn.Module):
 
     def features(self, z_all: torch.Tensor) -> torch.Tensor:
         """(B, D) -> raw ACAP features (B, V, 9), as :meth:`LatentSpace.decode_features`."""
+        if self.basis == "acap":
+            return (self.pca_mean + z_all @ self.pca_components).view(z_all.shape[0], self.n_vertices, 9)
         return self.net.decode(z_all) / self.norm_bound * self.norm_half_range + self.norm_center
 
     def forward(self, z_all: torch.Tensor) -> torch.Tensor:
+        if self.basis == "vertex":
+            return (self.pca_mean + z_all @ self.pca_components).view(z_all.shape[0], self.n_vertices, 3) \
+                + self.rest_centroid
         feats = self.features(z_all)
         if self.output == "features":
             return feats

@@ -32,6 +32,7 @@ from neuralcol.metrics.reconstruction import relative_vertex_error
 from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder, Level2Autoencoders
 from neuralcol.nn.latent_space import LatentSpace
 from neuralcol.nn.normalizer import FeatureNormalizer
+from neuralcol.nn.pca_space import BASES, PCALatentSpace, centred_vertices, pca_space
 from neuralcol.rundir import CacheDir
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.progress import trainer_progress
@@ -127,7 +128,8 @@ def connect_partition(partition: np.ndarray, edges: np.ndarray, k: int, max_roun
 
 # settings added after caches existed: at these values they leave the key as it was (an unchanged model keeps
 # its cached space when a config spells the default out)
-KEY_NEUTRAL = {("level1", "activation"): "tanh", ("level1", "code_noise"): 0.0, ("level2", "code_noise"): 0.0,
+KEY_NEUTRAL = {(None, "kind"): "bilevel",
+               ("level1", "activation"): "tanh", ("level1", "code_noise"): 0.0, ("level2", "code_noise"): 0.0,
                ("level1", "interp_ratio"): 0.0, ("level2", "interp_ratio"): 0.0, (None, "interp_t"): [0.0, 1.0]}
 
 
@@ -268,6 +270,100 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
     return space, report
 
 
+def latent_dim(latent_cfg: dict) -> int:
+    """|Z_all| = K * (1 + d) of a data set's ``latent`` block."""
+    return int(latent_cfg["n_components"]) * (1 + int(latent_cfg["level2_dim"]))
+
+
+def train_pca_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConfig | dict, latent_cfg: DictConfig | dict,
+                    seed: int) -> tuple[PCALatentSpace, dict]:
+    """``autoencoder=pca``: a PCA latent space of |Z_all| components fit on the training meshes (issue 40).
+
+    The split, the box rule (``box_from``, ``box_margin``) and the sub-domains' initial clustering are the bilevel
+    autoencoder's, so the two spaces differ only in their maps. Returns the space and its report (the same keys as
+    :func:`train_latent_space`'s).
+    """
+    ae, lat = as_dict(ae_cfg), as_dict(latent_cfg)
+    t_start = time.perf_counter()
+    basis = str(ae.get("basis", "vertex"))
+    if basis not in BASES:
+        raise ValueError(f"autoencoder.basis={basis!r}; use one of {BASES}")
+    train_idx, val_idx = split_indices(len(ds), ae["val_fraction"], seed)
+    rest = ds.vertices[feats.reference_index].detach().cpu().numpy().astype(np.float64)
+    faces = ds.faces.cpu().numpy()
+    edges = edge_topology(faces).edges
+    k = int(lat["n_components"])
+    raw_part = spatial_attention_init(rest, k, 1.0, seed).argmax(0).numpy()
+    part = connect_partition(raw_part, edges, k)
+    box_from = str(ae.get("box_from", "train"))
+    if box_from not in ("train", "all"):
+        raise ValueError(f"autoencoder.box_from={box_from!r}; use 'train' or 'all'")
+    space = pca_space(basis, ds.vertices.numpy(), feats.features.numpy(), train_idx, latent_dim(lat), rest, faces,
+                      dict(feats.acap.settings), k, part, float(ae.get("box_margin", 0.0)))
+    if box_from == "all":
+        z = space.encode(ds.vertices)
+        margin = float(ae.get("box_margin", 0.0)) * (z.amax(0) - z.amin(0))
+        space.box_lo.copy_(z.amin(0) - margin)
+        space.box_hi.copy_(z.amax(0) + margin)
+    err = reference_errors(space, ds, feats, train_idx, val_idx)
+    report = {
+        "kind": "pca", "basis": basis, "n_train": len(train_idx), "n_val": len(val_idx), "latent_dim": space.dim,
+        "n_components": k, "train_mean_vertex_error": err["train_mean_vertex_error"],
+        "val_mean_vertex_error": err["val_mean_vertex_error"], "train_max_vertex_error": err["train_max_vertex_error"],
+        "partition_sizes": np.bincount(part, minlength=k).tolist(), "pieces_before_cleanup":
+            count_pieces(raw_part, edges, k), "pieces": count_pieces(part, edges, k),
+        "train_seconds": time.perf_counter() - t_start, "train_index": train_idx.tolist(),
+        "val_index": val_idx.tolist(), "n_parameters": int(space.pca_components.numel() + space.pca_mean.numel()),
+        "box_from": box_from,
+    }
+    space.meta = report
+    return space, report
+
+
+def reference_errors(space: PCALatentSpace, ds: MeshDataset, feats: DatasetFeatures, train_idx, val_idx) -> dict:
+    """Train and held-out vertex errors of a PCA space's round trip on the data set's meshes (the autoencoder's
+    metric, :func:`~neuralcol.metrics.reconstruction.relative_vertex_error`). The ACAP basis projects the data set's
+    cached features instead of encoding the meshes again."""
+    if space.basis == "vertex":
+        rows = torch.from_numpy(centred_vertices(ds.vertices.numpy()))
+    else:
+        rows = feats.features.to(torch.float64).flatten(1)
+    z = (rows - space.pca_mean) @ space.pca_components.T  # (N, D)
+    with torch.no_grad():
+        recon = torch.cat([space.decode(b) for b in z.split(256)])
+    err = relative_vertex_error(recon.float(), ds.vertices.float())
+    tr, va = torch.as_tensor(np.asarray(train_idx)), torch.as_tensor(np.asarray(val_idx))
+    return {"train_mean_vertex_error": float(err.mean[tr].mean()),
+            "val_mean_vertex_error": float(err.mean[va].mean()) if len(va) else None,
+            "train_max_vertex_error": float(err.max[tr].max())}
+
+
+def reference_spaces(ds: MeshDataset, feats: DatasetFeatures, space, report: dict) -> tuple[dict, dict]:
+    """The PCA references of a latent space (issue 40): PCA of the vertex positions and of the raw ACAP features at
+    the same |Z_all|, fit on the same training meshes, with the space's sub-domains and box rule.
+
+    Returns:
+        (``{"vertex_pca": PCALatentSpace, "acap_pca": ...}``, ``{name: {train_mean_vertex_error,
+        val_mean_vertex_error, train_max_vertex_error}}``); a reference the training meshes cannot span (|Z_all| >
+        N_train - 1) is left out of the spaces and reported with its ``reason``.
+    """
+    train_idx, val_idx = np.asarray(report["train_index"]), np.asarray(report["val_index"])
+    rest = ds.vertices[feats.reference_index].detach().cpu().numpy().astype(np.float64)
+    spaces, errors = {}, {}
+    for basis in BASES:
+        name = f"{basis}_pca"
+        try:
+            ref = pca_space(basis, ds.vertices.numpy(), feats.features.numpy(), train_idx, space.dim, rest,
+                            ds.faces.cpu().numpy(), dict(feats.acap.settings), space.n_parts,
+                            space.partition.cpu().numpy())
+        except ValueError as e:
+            errors[name] = {"reason": str(e)}
+            continue
+        spaces[name] = ref
+        errors[name] = reference_errors(ref, ds, feats, train_idx, val_idx)
+    return spaces, errors
+
+
 def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, latent_cfg, seed: int,
                                cache_dir: str | Path | None, logger=None,
                                threads: int | None = 1) -> tuple[LatentSpace, dict, bool]:
@@ -290,9 +386,11 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
         train_keys["level2"] = "none"
     key = autoencoder_cache_key(ds, feats.reference_index, feats.acap.settings, train_keys, lat, seed)
     path = CacheDir(cache_dir).latent_space(key) if cache_dir else None
+    train = train_latent_space if str(ae.get("kind", "bilevel")) != "pca" else (
+        lambda ds, feats, ae, lat, seed, logger: train_pca_space(ds, feats, ae, lat, seed))
     if path is None:
         with threads_pinned(threads):
-            space, report = train_latent_space(ds, feats, ae, lat, seed, logger)
+            space, report = train(ds, feats, ae, lat, seed, logger)
         return space, {**report, "cache_key": key}, False
     path.parent.mkdir(parents=True, exist_ok=True)
     # one trainer per cache entry: parallel sweep jobs (hydra/launcher=parallel) wait for the first one
@@ -304,7 +402,7 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
             except Exception:  # a broken cache entry is retrained, not fatal
                 path.unlink()
         with threads_pinned(threads):
-            space, report = train_latent_space(ds, feats, ae, lat, seed, logger)
+            space, report = train(ds, feats, ae, lat, seed, logger)
         space.save(path)
         (path.parent / "report.json").write_text(json.dumps({k: v for k, v in report.items()
                                                              if k not in ("train_index", "val_index")}, indent=2))

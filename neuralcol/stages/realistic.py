@@ -120,9 +120,19 @@ def detector_logits(net: torch.nn.Module, z: np.ndarray, batch: int = 4096) -> n
     return torch.cat(out).double().numpy() if out else np.zeros(0)
 
 
+def round_trip_pd(space, v: torch.Tensor, pool, desc: str = "labeling round trips") -> tuple[torch.Tensor, np.ndarray]:
+    """Encode the meshes ``v (N, V, 3)`` into ``space``, decode them and label the result: ``(codes (N, D) float32,
+    exact PD of the round trips (N,))``."""
+    with torch.no_grad():
+        z = torch.cat([space.encode(b) for b in v.split(256)]).float().cpu() if len(v) else torch.zeros(0, space.dim)
+        rt = torch.cat([space.decode(b.to(space.box_lo.device)).cpu() for b in z.split(256)]).double().numpy()
+    return z, pool_pd(pool, rt, desc=desc)
+
+
 def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd: np.ndarray, pool, eps: float,
                        cfg, settings: ALMSettings, margins=(), batch_size: int = 256,
-                       mesh_net: torch.nn.Module | None = None, repair=None) -> tuple[dict, dict]:
+                       mesh_net: torch.nn.Module | None = None, repair=None,
+                       references: dict | None = None) -> tuple[dict, dict]:
     """The detector, the autoencoder's round trip and the handler on the realistic meshes.
 
     Args:
@@ -138,6 +148,8 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
             handler's last verified stage (the pool's labeler runs it, in this process); with
             ``repair_reference`` in ``cfg`` the repair alone on the inputs is measured beside it
             (``handling.repair_only``).
+        references: ``{name: latent space}`` whose round trips are judged beside the run's
+            (``round_trip.references``: the PCA references of issue 40); None: none.
 
     Returns:
         (metrics, arrays: per-mesh codes, logits, labels, round-trip PD and the handler's results).
@@ -145,10 +157,7 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
     c = as_dict(cfg)
     t0 = time.perf_counter()
     v = torch.as_tensor(meshes.vertices, dtype=torch.float64)
-    with torch.no_grad():
-        z = torch.cat([space.encode(b) for b in v.split(256)]).float().cpu() if len(v) else torch.zeros(0, space.dim)
-        rt = torch.cat([space.decode(b.to(space.box_lo.device)).cpu() for b in z.split(256)]).double().numpy()
-    pd_rt = pool_pd(pool, rt, desc="labeling round trips")
+    z, pd_rt = round_trip_pd(space, v, pool)
     logit = detector_logits(net, z.numpy())
     pred = logit > 0
     clear = clear_mask(pd, eps, float(c["clear_eps"]))
@@ -176,6 +185,16 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
             "detection_out_of_box": _detection(pred[clear & oob], truth[clear & oob]),
         },
     }
+    if references:
+        metrics["round_trip"]["references"] = {}
+        for name, ref in references.items():
+            _, pd_ref = round_trip_pd(ref, v, pool, desc=f"labeling round trips of {name}")
+            ok = clear & np.isfinite(pd_ref)
+            truth_ref = np.nan_to_num(pd_ref, nan=0.0) > 0
+            metrics["round_trip"]["references"][name] = {
+                "agreement": float((truth_ref[ok] == truth[ok]).mean()) if ok.any() else None,
+                "collides_lost": float((~truth_ref[ok & truth]).mean()) if (ok & truth).any() else None,
+                "collides_added": float(truth_ref[ok & ~truth].mean()) if (ok & ~truth).any() else None}
     arrays = {"z": z.numpy(), "logit": logit, "pd": pd, "pd_round_trip": pd_rt, "clear": clear,
               "kind": meshes.kind, "out_of_box": oob}
     if mesh_net is not None:
