@@ -10,16 +10,17 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch import nn
 
 from neuralcol.geometry.acap import ACAP
 from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder, Level2Autoencoders
+from neuralcol.nn.latent_box import LatentBox
 from neuralcol.nn.normalizer import FeatureNormalizer
+from neuralcol.nn.pca_space import PCALatentSpace
 from neuralcol.utils.files import atomic_path
 from neuralcol.utils.safe_files import plain_values, read_torch_file
 
 
-class LatentSpace(nn.Module):
+class LatentSpace(LatentBox):
     """Trained bilevel autoencoder with everything needed to go from latent codes to meshes and back.
 
     Args:
@@ -51,11 +52,6 @@ class LatentSpace(nn.Module):
         self.meta = dict(meta or {})
 
     # ------------------------------------------------------------------ facts
-    @property
-    def dim(self) -> int:
-        """D = |Z_all|."""
-        return int(self.box_lo.numel())
-
     @property
     def n_parts(self) -> int:
         """K = |Z_0| = number of sub-domains."""
@@ -103,19 +99,6 @@ class LatentSpace(nn.Module):
         feats = self.decode_features(z_all.to(self.box_lo.dtype))
         return self.acap.decode_vertices(feats, idx).to(z_all.dtype)
 
-    # ------------------------------------------------------------------ box
-    def sample(self, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
-        """n codes from U(Z), (n, D) float32 on the box's device."""
-        u = torch.rand(n, self.dim, generator=generator, device=self.box_lo.device)
-        return self.box_lo + u * (self.box_hi - self.box_lo)
-
-    def outside_box(self, z_all: torch.Tensor) -> torch.Tensor:
-        """(B,) bool: the code lies outside the box Z in some entry. The detector trains on codes from Z (U(Z) and
-        the projections into it); outside it extrapolates, which is where most codes of unseen meshes land
-        (issue 27: 64 % of SCAPE's realistic meshes, 99 % of proc_hand's)."""
-        lo, hi = self.box_lo.to(z_all), self.box_hi.to(z_all)
-        return ((z_all < lo) | (z_all > hi)).any(-1)
-
     # ------------------------------------------------------------------ persistence
     def save(self, path: str | Path) -> Path:
         """Save weights, normaliser, box, partition and the architecture to one file of tensors and plain values
@@ -147,8 +130,6 @@ class LatentSpace(nn.Module):
         blob = read_torch_file(path, map_location, fix=f"delete {path.parent} and run the command again "
                                                         "(the autoencoder is retrained into the cache)")
         if blob.get("kind") == "pca":  # autoencoder=pca (issue 40)
-            from neuralcol.nn.pca_space import PCALatentSpace
-
             return PCALatentSpace.from_blob(blob)
         arch, state = blob["arch"], blob["state"]
         l1 = Level1Autoencoder(arch["n_vertices"], arch["n_components"], arch["hidden"],

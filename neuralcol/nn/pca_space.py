@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from neuralcol.geometry.acap import ACAP, FEATURE_DIM
-from neuralcol.nn.latent_space import LatentSpace
+from neuralcol.nn.latent_box import LatentBox
 from neuralcol.utils.files import atomic_path
 from neuralcol.utils.safe_files import plain_values
 
@@ -68,8 +68,8 @@ def centred_vertices(vertices) -> np.ndarray:
     return (v - v.mean(1, keepdims=True)).reshape(len(v), -1)
 
 
-class PCALatentSpace(LatentSpace):
-    """A PCA latent space with the interface of :class:`LatentSpace`.
+class PCALatentSpace(LatentBox):
+    """A PCA latent space with the interface of :class:`~neuralcol.nn.latent_space.LatentSpace`.
 
     Args:
         basis: ``"vertex"`` or ``"acap"``: what the components span.
@@ -86,7 +86,7 @@ class PCALatentSpace(LatentSpace):
 
     def __init__(self, basis: str, pca: PCABasis, rest_vertices, faces, acap_kwargs: dict, n_components: int,
                  box_lo: torch.Tensor, box_hi: torch.Tensor, partition: torch.Tensor, meta: dict | None = None):
-        torch.nn.Module.__init__(self)
+        super().__init__()
         if basis not in BASES:
             raise ValueError(f"basis={basis!r}; use one of {BASES}")
         d = len(pca.components)

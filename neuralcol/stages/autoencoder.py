@@ -270,11 +270,6 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
     return space, report
 
 
-def latent_dim(latent_cfg: dict) -> int:
-    """|Z_all| = K * (1 + d) of a data set's ``latent`` block."""
-    return int(latent_cfg["n_components"]) * (1 + int(latent_cfg["level2_dim"]))
-
-
 def train_pca_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConfig | dict, latent_cfg: DictConfig | dict,
                     seed: int) -> tuple[PCALatentSpace, dict]:
     """``autoencoder=pca``: a PCA latent space of |Z_all| components fit on the training meshes (issue 40).
@@ -298,7 +293,8 @@ def train_pca_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConfig 
     box_from = str(ae.get("box_from", "train"))
     if box_from not in ("train", "all"):
         raise ValueError(f"autoencoder.box_from={box_from!r}; use 'train' or 'all'")
-    space = pca_space(basis, ds.vertices.numpy(), feats.features.numpy(), train_idx, latent_dim(lat), rest, faces,
+    dim = k * (1 + int(lat["level2_dim"]))  # |Z_all|, as the bilevel space's
+    space = pca_space(basis, ds.vertices.numpy(), feats.features.numpy(), train_idx, dim, rest, faces,
                       dict(feats.acap.settings), k, part, float(ae.get("box_margin", 0.0)))
     if box_from == "all":
         z = space.encode(ds.vertices)

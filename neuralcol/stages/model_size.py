@@ -32,6 +32,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from neuralcol.active.stopping import kneedle
 from neuralcol.errors import UserInputError
+from neuralcol.stages.autoencoder import reference_spaces
 
 
 def latent_dim(n_components: int, level2_dim: int) -> int:
@@ -212,15 +213,19 @@ def search_model_size(cfg: DictConfig, run_dir: Path, ds, feats, run_fn: Callabl
         latents = []
         for k, l2 in itertools.product(list(ms.n_components), list(ms.level2_dim)):
             lat_cfg = _set(cfg, {"dataset.latent.n_components": int(k), "dataset.latent.level2_dim": int(l2)})
-            _, rep, cached = train_latent(ds, feats, lat_cfg.autoencoder, lat_cfg.dataset.latent,
-                                          int(cfg.autoencoder_seed), Path(cfg.paths.cache_dir))
+            space, rep, cached = train_latent(ds, feats, lat_cfg.autoencoder, lat_cfg.dataset.latent,
+                                              int(cfg.autoencoder_seed), Path(cfg.paths.cache_dir))
+            # the PCA references at the same |Z_all| (issue 40): a candidate worse than them is flagged
+            _, refs = reference_spaces(ds, feats, space, rep)
+            ref_val = {f"{name}_val_error": e.get("val_mean_vertex_error") for name, e in refs.items()}
             latents.append({"n_components": int(k), "level2_dim": int(l2), "latent_dim": latent_dim(k, l2),
                             "val_error": rep.get("val_mean_vertex_error"),
-                            "train_error": rep.get("train_mean_vertex_error"),
+                            "train_error": rep.get("train_mean_vertex_error"), **ref_val,
                             "autoencoder_parameters": rep.get("n_parameters"), "from_cache": cached,
                             "train_seconds": rep.get("train_seconds")})
+            refs_txt = ", ".join(f"{n} {v:.4f}" for n, v in ref_val.items() if v is not None)
             print(f"model_size: |Z_0| = {k}, level 2 = {l2}: held-out vertex error {rep.get('val_mean_vertex_error')}"
-                  f"{' (cached)' if cached else ''}", flush=True)
+                  f"{' (cached)' if cached else ''}; PCA at the same size: {refs_txt or 'n/a'}", flush=True)
         lat = choose_latent(latents, float(ms.recon_tol), str(ms.latent_rule))
         budget = ms.budget if ms.budget is not None else \
             int(cfg.detector.n_init) + int(cfg.detector.max_rounds) * int(cfg.detector.n_aug)
