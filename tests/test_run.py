@@ -83,6 +83,14 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
     assert saved["detector"]["method"] == "active" and saved["detector"]["test_set"]["n"] == 200
     assert (tmp_path / "run" / "detector.pt").is_file() and (tmp_path / "run" / "dc.h5").is_file()
     assert sum(saved["autoencoder"]["partition_sizes"]) == 2161
+    # issue 40: PCA at the same |Z_all| beside the autoencoder, the box probe, the round trips of both
+    refs = saved["autoencoder"]["references"]
+    assert set(refs) == {"vertex_pca", "acap_pca"}
+    assert 0 < refs["vertex_pca"]["train_mean_vertex_error"] < refs["vertex_pca"]["val_mean_vertex_error"] < 0.05
+    probe = saved["latent"]["box_probe"]
+    assert probe["space"]["n"] == 32 and set(probe["references"]) == {"vertex_pca", "acap_pca"}  # detector=tiny
+    assert 0 <= probe["space"]["collision_share"] <= 1
+    assert set(saved["realistic"]["round_trip"]["references"]) == {"vertex_pca", "acap_pca"}
     assert (tmp_path / "run" / "subdomains.png").stat().st_size > 10_000
     assert any((tmp_path / "run" / "tensorboard").iterdir()), "TensorBoard event files"
     h = saved["handling"]
@@ -170,6 +178,24 @@ def test_missing_dataset_is_one_line_error(tmp_path):
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and "swing: data set not found" in lines[0], lines
+
+
+def test_degenerate_box_stops_the_run_with_one_line(tmp_path, scape_dir):
+    """A box whose probe is (nearly) one class ends the run before the test set, with one line naming the setting.
+    No box is 60 % minority, so min_class_share 0.6 makes any box "degenerate"; the PCA space fits in milliseconds,
+    so this also runs ``autoencoder=pca`` through the command line."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "experiments.run", "dataset=scape", "autoencoder=pca", "detector=tiny",
+         "box_check.min_class_share=0.6", f"paths.data_dir={scape_dir.parent}", f"paths.cache_dir={tmp_path}/cache",
+         f"hydra.run.dir={tmp_path}/run", "labeling.pool.workers=0", "labeling.pool.progress=false"],
+        cwd=ROOT, capture_output=True, text=True, timeout=300,
+        env={k: v for k, v in __import__("os").environ.items() if k not in ("HYDRA_FULL_ERROR", "NEURALCOL_DEBUG")},
+    )
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: dataset=scape: "), lines
+    assert "box_check.min_class_share=0.6" in lines[0] and "vertex_pca" in lines[0]
+    assert not (tmp_path / "run" / "metrics.json").exists()
 
 
 def test_tiny_multirun_then_report(tmp_path, scape_dir):
