@@ -281,13 +281,18 @@ def train_pca_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConfig 
     ae, lat = as_dict(ae_cfg), as_dict(latent_cfg)
     t_start = time.perf_counter()
     basis = str(ae.get("basis", "vertex"))
-    if basis not in BASES:
-        raise ValueError(f"autoencoder.basis={basis!r}; use one of {BASES}")
+    if basis not in (*BASES, "auto"):
+        raise ValueError(f"autoencoder.basis={basis!r}; use one of {BASES} or auto")
     train_idx, val_idx = split_indices(len(ds), ae["val_fraction"], seed)
     rest = ds.vertices[feats.reference_index].detach().cpu().numpy().astype(np.float64)
     faces = ds.faces.cpu().numpy()
     edges = edge_topology(faces).edges
     k = int(lat["n_components"])
+    cv = None
+    if basis == "auto":  # the basis whose held-in cross-validation error is lower (the held-out meshes stay unseen)
+        cv = {b: cross_validated_error(b, ds, feats, train_idx, k * (1 + int(lat["level2_dim"])),
+                                       int(ae.get("cv_folds", 5)), seed) for b in BASES}
+        basis = min(BASES, key=lambda b: cv[b])
     raw_part = spatial_attention_init(rest, k, 1.0, seed).argmax(0).numpy()
     part = connect_partition(raw_part, edges, k)
     box_from = str(ae.get("box_from", "train"))
@@ -310,10 +315,30 @@ def train_pca_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConfig 
             count_pieces(raw_part, edges, k), "pieces": count_pieces(part, edges, k),
         "train_seconds": time.perf_counter() - t_start, "train_index": train_idx.tolist(),
         "val_index": val_idx.tolist(), "n_parameters": int(space.pca_components.numel() + space.pca_mean.numel()),
-        "box_from": box_from,
+        "box_from": box_from, "basis_cv_error": cv,
     }
     space.meta = report
     return space, report
+
+
+def cross_validated_error(basis: str, ds: MeshDataset, feats: DatasetFeatures, train_idx, dim: int, folds: int,
+                          seed: int) -> float:
+    """Mean vertex error of a ``basis`` PCA of ``dim`` components on the training meshes, each fold fit on the
+    others (``folds``-fold, shuffled by ``seed``); folds whose complement cannot span ``dim`` are skipped (inf if
+    all are)."""
+    train_idx = np.asarray(train_idx)
+    order = np.random.default_rng(seed).permutation(len(train_idx))
+    rest = ds.vertices[feats.reference_index].detach().cpu().numpy().astype(np.float64)
+    errs = []
+    for fold in np.array_split(order, max(2, int(folds))):
+        fit = np.setdiff1d(np.arange(len(train_idx)), fold)
+        if len(fit) - 1 < dim or not len(fold):
+            continue
+        ref = pca_space(basis, ds.vertices.numpy(), feats.features.numpy(), train_idx[fit], dim, rest,
+                        ds.faces.cpu().numpy(), dict(feats.acap.settings), dim, np.zeros(ds.n_vertices, np.int64))
+        e = reference_errors(ref, ds, feats, train_idx[fit], train_idx[fold])
+        errs.append(e["val_mean_vertex_error"])
+    return float(np.mean(errs)) if errs else float("inf")
 
 
 def reference_errors(space: PCALatentSpace, ds: MeshDataset, feats: DatasetFeatures, train_idx, val_idx) -> dict:

@@ -60,8 +60,8 @@ def config_problems(cfg: DictConfig) -> list[str]:
     need("method.projected_fraction", lambda v: 0 <= float(v) <= 1, "must lie in [0, 1]")
     choices = {"detector.newton.coordinates": ("box", "raw"), "autoencoder.box_from": ("train", "all"),
                "autoencoder.level1.activation": ("tanh", "linear"), "method.start": ("dc", "uncertain"),
-               "detector.loss.boundary_reduction": ("boundary", "batch"), "autoencoder.kind": ("bilevel", "pca"),
-               "autoencoder.basis": ("vertex", "acap")}  # nn.detector.BOUNDARY_REDUCTIONS
+               "detector.loss.boundary_reduction": ("boundary", "batch"),  # nn.detector.BOUNDARY_REDUCTIONS
+               "autoencoder.kind": ("bilevel", "pca"), "autoencoder.basis": ("vertex", "acap", "auto")}
     for key, allowed in choices.items():
         if _get(cfg, key) is not None:
             need(key, lambda v, allowed=allowed: v in allowed, f"use one of {', '.join(allowed)}")
