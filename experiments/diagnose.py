@@ -251,6 +251,10 @@ def run(cfg: DictConfig, out_dir: Path) -> dict:
         ctx = diagnose_context(cfg)
         ds, (space, report, _) = ctx.dataset, ctx.latent_space()
         results["latent_space"] = {"cache_key": report["cache_key"], "dim": space.dim, "n_parts": space.n_parts}
+        if "latent" in parts and getattr(space, "net", None) is None:
+            raise UserInputError("diagnose.parts=[latent] studies the bilevel autoencoder's decoder (tanh saturation, "
+                                 "feature ranges); autoencoder=pca has no decoder network: drop 'latent' from "
+                                 "diagnose.parts (curve and projection work on any latent space)")
         with ctx.pool(ctx.sample_labeler()) as pool:
             oracle = ctx.oracle(pool)
             if "latent" in parts:
