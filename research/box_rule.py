@@ -12,8 +12,8 @@ the share of the held-out meshes' codes that fall outside the box. Writes ``OUT/
 from __future__ import annotations
 
 import argparse
-import copy
 import json
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -27,13 +27,18 @@ from neuralcol.utils.threads import pin_threads
 CONF = Path(__file__).resolve().parents[1] / "conf"
 
 
+@contextmanager
 def widened(space, margin: float):
-    """A copy of ``space`` whose box is widened by ``margin`` of each side on both ends (negative: shrunk)."""
-    out = copy.deepcopy(space)
-    side = space.box_hi - space.box_lo
-    out.box_lo.copy_(space.box_lo - margin * side)
-    out.box_hi.copy_(space.box_hi + margin * side)
-    return out
+    """``space`` with its box widened by ``margin`` of each side on both ends (negative: shrunk), restored after."""
+    lo, hi = space.box_lo.clone(), space.box_hi.clone()
+    side = hi - lo
+    space.box_lo.copy_(lo - margin * side)
+    space.box_hi.copy_(hi + margin * side)
+    try:
+        yield space
+    finally:
+        space.box_lo.copy_(lo)
+        space.box_hi.copy_(hi)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -56,11 +61,11 @@ def main(argv: list[str] | None = None) -> None:
         for name, space in spaces.items():
             z_held = space.encode(held)
             for m in args.margins:
-                box = widened(space, m)
-                probe = probe_share(box, pool, args.n, int(cfg.box_check.seed), desc=f"{name}, margin {m:g}")
+                with widened(space, m) as box:
+                    probe = probe_share(box, pool, args.n, int(cfg.box_check.seed), desc=f"{name}, margin {m:g}")
+                    outside = float(box.outside_box(z_held).float().mean())
                 rows.append({"space": name, "margin": m, "collision_share": probe["collision_share"],
-                             "n_labeled": probe["n_labeled"],
-                             "heldout_outside": float(box.outside_box(z_held).float().mean())})
+                             "n_labeled": probe["n_labeled"], "heldout_outside": outside})
                 print(json.dumps(rows[-1]), flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     doc = {"overrides": list(args.overrides), "kind": stage.report.get("kind", "bilevel"), "rows": rows}
