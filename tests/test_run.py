@@ -91,6 +91,13 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
     assert probe["space"]["n"] == 32 and set(probe["references"]) == {"vertex_pca", "acap_pca"}  # detector=tiny
     assert 0 <= probe["space"]["collision_share"] <= 1
     assert set(saved["realistic"]["round_trip"]["references"]) == {"vertex_pca", "acap_pca"}
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(tmp_path / "run" / "tensorboard" / "latent")).Reload()
+    assert {"latent/vertex_pca_val_error", "latent/acap_pca_box_collision_share",
+            "latent/vertex_pca_round_trip_agreement"} <= set(acc.Tags()["scalars"])
+    assert acc.Scalars("latent/vertex_pca_val_error")[0].value == pytest.approx(
+        refs["vertex_pca"]["val_mean_vertex_error"], rel=1e-6)
     assert (tmp_path / "run" / "subdomains.png").stat().st_size > 10_000
     assert any((tmp_path / "run" / "tensorboard").iterdir()), "TensorBoard event files"
     h = saved["handling"]

@@ -36,7 +36,7 @@ def test_one_tensorboard_run_per_stage(tmp_path):
     metrics = run(cfg, tmp_path / "run")
     tb = tmp_path / "run" / "tensorboard"
     assert sorted(p.name for p in tb.iterdir()) == ["autoencoder_level1", "autoencoder_level2", "data",
-                                                     "detector_supv", "handling", "mesh_detector"]
+                                                     "detector_supv", "handling", "latent", "mesh_detector"]
     tags, _ = _tags(tb / "autoencoder_level1")
     assert any(t.startswith("train") for t in tags["scalars"]), tags["scalars"]
     tags, acc = _tags(tb / "detector_supv")
@@ -52,3 +52,10 @@ def test_one_tensorboard_run_per_stage(tmp_path):
     assert "train/mesh_loss" in tags["scalars"], tags["scalars"]
     tags, _ = _tags(tb / "handling")
     assert "handling/success_rate" in tags["scalars"]
+    # issue 40: the latent space beside its PCA references; 19 training meshes cannot span |Z_all| = 32, so the
+    # references say why and log nothing (test_run.py checks them logged on SCAPE)
+    tags, _ = _tags(tb / "latent")
+    assert {"latent/val_error", "latent/uz_collision_share", "latent/round_trip_agreement"} <= set(tags["scalars"])
+    refs = metrics["autoencoder"]["references"]
+    assert all("spans at most 18" in r["reason"] for r in refs.values()), refs
+    assert not any("_pca_" in t for t in tags["scalars"]), tags["scalars"]

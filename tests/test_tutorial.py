@@ -39,7 +39,8 @@ TINY = ("autoencoder=tiny detector=tiny realistic=tiny mesh_detector=tiny speed_
         "labeling.pool.workers=0 labeling.pool.progress=false "
         "handler.n_inputs=4 "
         "handler.verify_margins=[] n_example_meshes=0 detector.tensorboard_examples=2 autoencoder.box_margin=0.5")
-STAGES = ["autoencoder_level1", "autoencoder_level2", "data", "detector_active", "handling", "mesh_detector"]
+STAGES = ["autoencoder_level1", "autoencoder_level2", "data", "detector_active", "handling", "latent",
+          "mesh_detector"]
 FENCE = re.compile(r"^```(\S*)\n(.*?)^```\s*$", re.M | re.S)
 
 
