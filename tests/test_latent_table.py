@@ -42,3 +42,18 @@ def test_main_prints_a_table_and_names_a_missing_run(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         main([str(tmp_path / "missing")])
     assert e.value.code == 2 and "metrics.json" in capsys.readouterr().err
+
+
+def test_report_has_a_latent_table_per_kind():
+    from experiments.reporting.markdown import latent_markdown
+
+    a, b = _metrics(0.9, 0.2), _metrics(0.8, 0.2, kind="bilevel")
+    b["autoencoder"]["val_mean_vertex_error"] = 0.05
+    a["latent"]["box_probe"] = {"space": {"collision_share": 0.4},
+                                "references": {"vertex_pca": {"collision_share": 0.5}}}
+    lines = latent_markdown([a, b, {"autoencoder": {}}])  # a run without references is left out
+    assert "mean over 2 runs" in lines[0]
+    assert "| the runs' (bilevel, 1) | 1.00% | 5.00% | — | — |" in lines
+    assert "| the runs' (pca, 1) | 1.00% | 2.00% | 40.0% | — |" in lines
+    assert "| vertex_pca | — | 2.00% | 50.0% | — |" in lines
+    assert latent_markdown([{"autoencoder": {}}]) == []

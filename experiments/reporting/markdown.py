@@ -105,6 +105,7 @@ def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) 
         base = [v for m in names for c in methods[m].values() for v in c["majority_accuracy"]]
         lines += [f"Majority-class accuracy of the test set: {np.mean(base):.4f}.", ""]
         lines += [handling_markdown(ds_runs)]
+        lines += latent_markdown(ds_runs)
         lines += speed_markdown(ds, ds_runs, agg)
         lines += stability_markdown(ds, agg)
         lines += projection_markdown(ds_runs)
@@ -123,6 +124,42 @@ def bench_markdown(bench: dict) -> list[str]:
                 f" {name}: {bench[f'detector_{key}_us_per_sample_b4096']:.2f} µs, "
                 f"{bench[f'neural_vs_exact_speedup_{key}']:.0f}×."
                 for key, name in BENCH_VARIANTS if f"neural_vs_exact_speedup_{key}" in bench), ""]
+
+
+def latent_markdown(runs: list[dict]) -> list[str]:
+    """The latent space beside its PCA references (issue 40): held-out error, the share of a probe of each box that
+    collides and how often each round trip keeps a realistic mesh's label, mean over the runs that report them."""
+    runs = [r for r in runs if (r.get("autoencoder") or {}).get("references")]
+    if not runs:
+        return []
+
+    def mean(vals):
+        vals = [v for v in vals if v is not None]
+        return float(np.mean(vals)) if vals else None
+
+    def cell(v, fmt):
+        return "—" if v is None else format(v, fmt)
+
+    lines = [f"### latent space against PCA at the same |Z_all| (mean over {len(runs)} runs; docs/autoencoder.md)", "",
+             "| latent space | train error | held-out error | U(Z) probe collides | round trip keeps label |",
+             "|---|---:|---:|---:|---:|"]
+    for kind in sorted({r["autoencoder"].get("kind", "bilevel") for r in runs}):
+        rs = [r for r in runs if r["autoencoder"].get("kind", "bilevel") == kind]
+        lines.append(row(f"the runs' ({kind}, {len(rs)})",
+                         cell(mean([r["autoencoder"]["train_mean_vertex_error"] for r in rs]), ".2%"),
+                         cell(mean([r["autoencoder"]["val_mean_vertex_error"] for r in rs]), ".2%"),
+                         cell(mean([_dig(r, ("latent", "box_probe", "space", "collision_share")) for r in rs]), ".1%"),
+                         cell(mean([_dig(r, ("realistic", "round_trip", "agreement")) for r in rs]), ".1%")))
+    names = sorted({name for r in runs for name in r["autoencoder"]["references"]})
+    for name in names:
+        refs = [r["autoencoder"]["references"].get(name) or {} for r in runs]
+        lines.append(row(name, cell(mean([e.get("train_mean_vertex_error") for e in refs]), ".2%"),
+                         cell(mean([e.get("val_mean_vertex_error") for e in refs]), ".2%"),
+                         cell(mean([_dig(r, ("latent", "box_probe", "references", name, "collision_share"))
+                                    for r in runs]), ".1%"),
+                         cell(mean([_dig(r, ("realistic", "round_trip", "references", name, "agreement"))
+                                    for r in runs]), ".1%")))
+    return lines + [""]
 
 
 def realistic_rows(runs: list[dict], names: list[str]) -> list[str]:
