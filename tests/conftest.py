@@ -15,6 +15,31 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     # each, and for the runs the tests start as subprocesses, so the workers do not oversubscribe the cores
     os.environ["OMP_NUM_THREADS"] = "1"
     torch.set_num_threads(1)
+
+# The test files that take longest (CPU seconds in `make test`, longest first: each runs whole pipelines). xdist's
+# loadfile hands out files in collection order once its reordering (most tests first, which put these few-test files
+# last) is off, so they start first and the many short files fill in behind them: both workers end together.
+LONGEST_FIRST = ("test_run.py", "test_body_dataset.py", "test_reproducibility.py", "test_reliability.py",
+                 "test_tutorial.py", "test_progress.py", "test_model_size.py", "test_api.py", "test_gpu_check.py",
+                 "test_diagnose.py", "test_tensorboard.py", "test_labeler.py", "test_validate.py", "test_active.py",
+                 "test_pool_dask.py", "test_scale_curve.py", "test_pool_faults.py")
+
+
+def pytest_configure(config):
+    if hasattr(config.option, "loadscopereorder"):  # pytest-xdist >= 3.6; older ones keep their order
+        config.option.loadscopereorder = False
+
+
+def pytest_collection_modifyitems(config, items):
+    """Files in ``LONGEST_FIRST`` order, then the others by their number of tests (xdist's own order); a stable sort,
+    so each file's tests stay together and in their order."""
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    count: dict = {}
+    for item in items:
+        count[item.path] = count.get(item.path, 0) + 1
+    items.sort(key=lambda item: (rank.get(item.path.name, len(rank)), -count[item.path]))
+
+
 # SCAPE is read where it lives (never copied): $NEURALCOL_DATA/scape, else ../shared/data/scape.
 DATA_DIR = Path(os.environ.get("NEURALCOL_DATA", ROOT.parent / "shared" / "data"))
 SCAPE_DIR = DATA_DIR / "scape"

@@ -86,16 +86,18 @@ def test_pipeline_end_to_end_on_a_body_subset(tmp_path):
     with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
         cfg = compose("config", overrides=[
             "dataset=anny_body", "dataset.source.n_poses=20", f"paths.cache_dir={tmp_path}/cache",
-            "n_example_meshes=1", "autoencoder=tiny", "detector=tiny", "detector.n_init=48", "detector.n_aug=24",
-            "detector.max_rounds=1", "detector.test_size=64", "detector.cascade.calibration_size=64",
-            "realistic=tiny", "realistic.n_acap_interp=12", "realistic.n_vertex_interp=6", "realistic.n_perturbed=6",
-            "realistic.handler_inputs=2", "mesh_detector=tiny", "mesh_detector.train_set.n_acap_interp=12",
-            "mesh_detector.train_set.n_vertex_interp=6", "mesh_detector.train_set.n_perturbed=6",
-            "speed_accuracy=tiny", "handler.n_inputs=4", "labeling.pool.workers=0", "labeling.pool.progress=false"])
+            "n_example_meshes=1", "autoencoder=tiny", "detector=tiny", "detector.n_init=24", "detector.n_aug=12",
+            "detector.max_rounds=1", "detector.test_size=32", "detector.cascade.calibration_size=32",
+            "realistic=tiny", "realistic.n_acap_interp=6", "realistic.n_vertex_interp=3", "realistic.n_perturbed=3",
+            "realistic.handler_inputs=2", "mesh_detector=tiny", "mesh_detector.train_set.n_acap_interp=6",
+            "mesh_detector.train_set.n_vertex_interp=3", "mesh_detector.train_set.n_perturbed=3",
+            "speed_accuracy=tiny", "speed_accuracy.n_exact=4", "speed_accuracy.n_meshlab=4", "speed_accuracy.n_fcl=2",
+            "handler.n_inputs=2", "handler.verify_margins=[4.0]", "labeling.pool.workers=0",
+            "labeling.pool.progress=false"])
     m = run(cfg, tmp_path / "run")
     assert (m["dataset"]["n_meshes"], m["dataset"]["n_vertices"], m["dataset"]["n_faces"]) == (20, 13348, 26692)
     assert m["autoencoder"]["latent_dim"] == 16 and m["latent"]["dim"] == 16  # no level 2 (conf/dataset/anny_body)
-    assert [r["dataset_size"] for r in m["rounds"]] == [48, 72]
-    assert m["detector"]["test_set"]["n"] == 64 and 0 <= m["rounds"][-1]["accuracy"] <= 1
-    assert m["mesh_detector"]["n_dc"] == 72 and m["realistic"]["n"] > 0
+    assert [r["dataset_size"] for r in m["rounds"]] == [24, 36]
+    assert m["detector"]["test_set"]["n"] == 32 and 0 <= m["rounds"][-1]["accuracy"] <= 1
+    assert m["mesh_detector"]["n_dc"] == 36 and m["realistic"]["n"] > 0
     assert (tmp_path / "run" / "metrics.json").is_file() and (tmp_path / "run" / "speed_accuracy.png").is_file()

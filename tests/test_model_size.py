@@ -85,7 +85,8 @@ def _cfg(tmp_path, *extra):
         return compose(config_name="config", overrides=[
             "dataset=proc_hand", "dataset.source.n_poses=24", f"paths.cache_dir={tmp_path}/cache",
             "autoencoder=tiny", "detector=tiny",
-            "realistic=tiny", "mesh_detector=tiny", "labeling.pool.workers=0", "labeling.pool.progress=false",
+            "realistic=tiny", "mesh_detector=tiny", "speed_accuracy=tiny", "labeling.pool.workers=0",
+            "labeling.pool.progress=false",
             "handler.n_inputs=4", "handler.verify_margins=[]", "n_example_meshes=0", *extra])
 
 

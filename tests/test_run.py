@@ -214,7 +214,7 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     proc = subprocess.run(
         [sys.executable, "-m", "experiments.run", "-m", "dataset=scape", "autoencoder=tiny", "detector=tiny",
          "realistic=tiny", "speed_accuracy=tiny",
-         "mesh_detector=tiny", "method=supv_bd,active", "seed=0,1", "hydra/launcher=parallel", "handler.n_inputs=8",
+         "mesh_detector=tiny", "method=supv_bd,active", "seed=0,1", "hydra/launcher=parallel", "handler.n_inputs=4",
          "handler.eval_every_round=true", "handler.verify_margins=[4.0]", "n_example_meshes=0",
          "labeling.pool.workers=0", "labeling.pool.progress=false", f"paths.data_dir={scape_dir.parent}",
          f"paths.cache_dir={tmp_path}/cache",
@@ -265,6 +265,6 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
         np.testing.assert_allclose((np.nan_to_num(rate) * count).sum() / 200,
                                    np.mean([m["rounds"][-1]["accuracy"] for m in final]), atol=1e-9)
         count, rate = np.array(f["handler"]["count"]), np.array(f["handler"]["mean"])
-        assert count.sum() == 8 and count[:2].sum() == 0, "handler inputs all self-penetrate"
-        np.testing.assert_allclose((np.nan_to_num(rate) * count).sum() / 8,
+        assert count.sum() == 4 and count[:2].sum() == 0, "handler inputs all self-penetrate"
+        np.testing.assert_allclose((np.nan_to_num(rate) * count).sum() / 4,
                                    np.mean([m["handling"]["success_rate"] for m in final]), atol=1e-9)
