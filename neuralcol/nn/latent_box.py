@@ -6,8 +6,11 @@
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
+
+from neuralcol.geometry.acap import ACAP
 
 
 class LatentBox(nn.Module):
@@ -15,6 +18,19 @@ class LatentBox(nn.Module):
 
     box_lo: torch.Tensor
     box_hi: torch.Tensor
+
+    def _register_mesh_and_box(self, rest_vertices, faces, acap_kwargs: dict, box_lo: torch.Tensor,
+                               box_hi: torch.Tensor, partition, meta: dict | None) -> None:
+        """What every latent space holds: the ACAP transform of its rest mesh, rest mesh (V, 3) and faces (F, 3),
+        the box (D,) and the sub-domain of each vertex (V,), and its JSON-able facts."""
+        self.acap_kwargs = dict(acap_kwargs)
+        self.acap = ACAP(rest_vertices, faces, **self.acap_kwargs)
+        self.register_buffer("rest_vertices", torch.as_tensor(np.asarray(rest_vertices), dtype=torch.float64))
+        self.register_buffer("faces", torch.as_tensor(np.asarray(faces), dtype=torch.long))
+        self.register_buffer("box_lo", box_lo.float().clone())
+        self.register_buffer("box_hi", box_hi.float().clone())
+        self.register_buffer("partition", torch.as_tensor(partition, dtype=torch.long).clone())
+        self.meta = dict(meta or {})
 
     @property
     def dim(self) -> int:

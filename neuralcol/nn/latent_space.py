@@ -8,10 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from neuralcol.geometry.acap import ACAP
 from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder, Level2Autoencoders
 from neuralcol.nn.latent_box import LatentBox
 from neuralcol.nn.normalizer import FeatureNormalizer
@@ -39,17 +37,10 @@ class LatentSpace(LatentBox):
                  meta: dict | None = None):
         super().__init__()
         self.net = net
-        self.acap_kwargs = dict(acap_kwargs)
-        self.acap = ACAP(rest_vertices, faces, **self.acap_kwargs)
-        self.register_buffer("rest_vertices", torch.as_tensor(np.asarray(rest_vertices), dtype=torch.float64))
-        self.register_buffer("faces", torch.as_tensor(np.asarray(faces), dtype=torch.long))
+        self._register_mesh_and_box(rest_vertices, faces, acap_kwargs, box_lo, box_hi, partition, meta)
         self.register_buffer("norm_center", normalizer.center.float().clone())
         self.register_buffer("norm_half_range", normalizer.half_range.float().clone())
         self.norm_bound = normalizer.bound
-        self.register_buffer("box_lo", box_lo.float().clone())
-        self.register_buffer("box_hi", box_hi.float().clone())
-        self.register_buffer("partition", torch.as_tensor(partition, dtype=torch.long).clone())
-        self.meta = dict(meta or {})
 
     # ------------------------------------------------------------------ facts
     @property

@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from neuralcol.geometry.acap import ACAP, FEATURE_DIM
+from neuralcol.geometry.acap import FEATURE_DIM
 from neuralcol.nn.latent_box import LatentBox
 from neuralcol.utils.files import atomic_path
 from neuralcol.utils.safe_files import plain_values
@@ -95,17 +95,10 @@ class PCALatentSpace(LatentBox):
         self.basis = basis
         self.net = None  # no network: decoder_code_features() and the export know this
         self.n_components = int(n_components)
-        self.acap_kwargs = dict(acap_kwargs)
-        self.acap = ACAP(rest_vertices, faces, **self.acap_kwargs)
-        self.register_buffer("rest_vertices", torch.as_tensor(np.asarray(rest_vertices), dtype=torch.float64))
-        self.register_buffer("faces", torch.as_tensor(np.asarray(faces), dtype=torch.long))
+        self._register_mesh_and_box(rest_vertices, faces, acap_kwargs, box_lo, box_hi, partition, meta)
         self.register_buffer("pca_mean", torch.as_tensor(pca.mean, dtype=torch.float64).clone())
         self.register_buffer("pca_components", torch.as_tensor(pca.components, dtype=torch.float64).clone())
         self.register_buffer("pca_singular_values", torch.as_tensor(pca.singular_values, dtype=torch.float64).clone())
-        self.register_buffer("box_lo", box_lo.float().clone())
-        self.register_buffer("box_hi", box_hi.float().clone())
-        self.register_buffer("partition", torch.as_tensor(partition, dtype=torch.long).clone())
-        self.meta = dict(meta or {})
 
     # ------------------------------------------------------------------ facts
     @property
