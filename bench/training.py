@@ -20,7 +20,7 @@ def ae_epoch_seconds(ds, feats, ae: dict, latent: dict, epochs: tuple[int, int],
                      reps: int) -> tuple[list[float], LatentSpace]:
     """Seconds per epoch of one autoencoder level (the ``ae`` settings, its ``accelerator`` included): both levels
     trained for ``epochs[0]`` and for ``epochs[1]`` epochs, ``reps`` times each; the per-epoch figure is the slope,
-    so set-up costs (Trainer, data, partition) cancel. Returns the ``reps`` slopes and the last latent space
+    so set-up costs (Trainer, data, partition) cancel; one short warm-up run goes first. Returns the ``reps`` slopes and the last latent space
     trained (``epochs[1]`` epochs per level)."""
     from neuralcol.stages.autoencoder import train_latent_space
 
@@ -31,7 +31,9 @@ def ae_epoch_seconds(ds, feats, ae: dict, latent: dict, epochs: tuple[int, int],
         a = {**ae, "level1": {**ae["level1"], "epochs": n}, "level2": {**ae["level2"], "epochs": n}}
         last[:] = [train_latent_space(ds, feats, a, latent, 0)[0]]
 
-    t_lo = repeat(lambda: train_ae(lo_e), reps, warmup=0)
+    # one warm-up run of the short length: on CUDA the first training pays the context, cuBLAS and allocator
+    # set-up, which made the slope negative on an H100 (2026-11-27: -0.0016 s per epoch)
+    t_lo = repeat(lambda: train_ae(lo_e), reps, warmup=1)
     t_hi = repeat(lambda: train_ae(hi_e), reps, warmup=0)
     return [(b - a) / (2 * (hi_e - lo_e)) for a, b in zip(t_lo, t_hi)], last[0]  # both levels ran n epochs
 
