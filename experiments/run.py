@@ -95,8 +95,10 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     settings = alm_settings(cfg.handler.alm)
     ref_spaces, ref_errors = ctx.references  # PCA at the same |Z_all| (issue 40)
     with ctx.pool(sample_labeler) as pool:
+        box_fit = ctx.fit_box(pool, sample_labeler)  # issue 40: the box scaled until U(Z) is worth sampling
+        ae_report = ctx.latent_space().report  # a fitted box has its own cache key
         oracle = ctx.oracle(pool)
-        box_probe = box_stage(space, ref_spaces, pool, cfg)
+        box_probe = box_stage(space, ref_spaces, pool, cfg, box_fit)
         # inputs of the collision handler: the first colliding rows of the shared test set
         test, _, _ = shared_test_set(oracle, cfg.detector, ae_report["cache_key"], cfg.paths.cache_dir)
         pick = np.flatnonzero(test.pd > 0)[: int(cfg.handler.n_inputs)]
@@ -202,14 +204,17 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     return metrics
 
 
-def box_stage(space, ref_spaces: dict, pool, cfg: DictConfig) -> dict | None:
+def box_stage(space, ref_spaces: dict, pool, cfg: DictConfig, box_fit: dict | None = None) -> dict | None:
     """Label a probe of U(Z) and of the references' boxes; stop on a degenerate box (:mod:`~neuralcol.stages.
-    box_check`). Returns ``{"space": probe, "references": {name: probe}}`` or None when ``box_check`` is off."""
+    box_check`). The fitted box's probe (``box_fit``, same size and seed) is reused, not labeled again.
+    Returns ``{"space": probe, "references": {name: probe}}`` or None when ``box_check`` is off."""
     bc = cfg.get("box_check")
     if bc is None or not bc.enabled:
         return None
     n, seed = int(bc.n_probe), int(bc.seed)
-    probe = probe_share(space, pool, n, seed, desc="probing the box Z")
+    chosen = [t for t in (box_fit or {}).get("trials", []) if t["factor"] == box_fit["factor"]]
+    probe = ({k: v for k, v in chosen[0].items() if k != "factor"} if chosen
+             else probe_share(space, pool, n, seed, desc="probing the box Z"))
     refs = {name: probe_share(ref, pool, n, seed, desc=f"probing the box of {name}")
             for name, ref in ref_spaces.items()} if bc.references else {}
     check_box(probe, float(bc.min_class_share), str(cfg.dataset.name), refs)

@@ -14,6 +14,8 @@ need as arguments. File names come from :mod:`neuralcol.rundir`.
 
 from __future__ import annotations
 
+import hashlib
+import json
 from functools import cached_property
 from pathlib import Path
 from typing import NamedTuple
@@ -31,6 +33,9 @@ from neuralcol.rundir import CacheDir, RunDir
 from neuralcol.samples.cache import samples_cache_dir
 from neuralcol.samples.oracle import LatentOracle
 from neuralcol.stages.autoencoder import reference_spaces, train_or_load_latent_space
+from neuralcol.stages.box_check import probe_share
+from neuralcol.stages.box_fit import fit_box, fitted_key, scaled_box
+from neuralcol.utils.files import write_json_atomic
 
 
 class LatentStage(NamedTuple):
@@ -116,6 +121,45 @@ class RunContext:
         """Use an already loaded latent space (``report["cache_key"]`` names its caches)."""
         self._latent = LatentStage(space, report, True)
         return self._latent
+
+    def fit_box(self, pool: LabelPool, labeler) -> dict | None:
+        """Fit the latent space's box to ``box_fit.band`` with labels from ``pool`` (issue 40,
+        :mod:`~neuralcol.stages.box_fit`); the probe is ``box_check``'s (size and seed). Afterwards the latent stage
+        holds the fitted space under its own cache key (saved there, so its test set, D_c and
+        :class:`~neuralcol.api.TrainedRun` never meet the paper's box) and ``report["box_fit"]``. The fit is cached
+        beside the paper box's labeled samples. Returns the fit, or None when ``box_fit`` is off.
+
+        ``labeler``: the labeler behind ``pool`` (it names the cache of labeled samples).
+        """
+        bf, bc = self.cfg.get("box_fit"), self.cfg.box_check
+        if bf is None or not bf.enabled:
+            return None
+        if self._latent is not None and "box_fit" in self._latent.report:  # fitted already
+            return self._latent.report["box_fit"]
+        stage = self.latent_space()
+        space, report, key = stage.space, stage.report, stage.report["cache_key"]
+        band, shrink, grow = (list(map(float, bf[k])) for k in ("band", "shrink", "grow"))
+        n, seed = int(bc.n_probe), int(bc.seed)
+        settings = {"band": band, "shrink": shrink, "grow": grow, "n_probe": n, "seed": seed}
+        tag = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:12]
+        fit_file = self.samples_dir(labeler) / f"box_fit_{tag}.json"
+        if fit_file.is_file():
+            fit = json.loads(fit_file.read_text())
+            lo, hi = scaled_box(space.box_lo.detach().clone(), space.box_hi.detach().clone(), fit["factor"])
+            space.box_lo.copy_(lo)
+            space.box_hi.copy_(hi)
+        else:
+            fit = fit_box(space, lambda sp: probe_share(sp, pool, n, seed, desc="fitting the box Z"), band,
+                          shrink, grow)
+            write_json_atomic(fit_file, {**fit, "settings": settings})
+        new_key = fitted_key(key, fit["factor"])
+        path = self.cache.latent_space(new_key)
+        if new_key != key and not path.is_file():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            space.meta = {**space.meta, "box_fit": {"factor": fit["factor"], "from": key}}
+            space.save(path)
+        self._latent = LatentStage(space, {**report, "cache_key": new_key, "box_fit": fit}, stage.from_cache)
+        return fit
 
     @property
     def space(self) -> LatentSpace:
