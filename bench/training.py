@@ -20,8 +20,8 @@ def ae_epoch_seconds(ds, feats, ae: dict, latent: dict, epochs: tuple[int, int],
                      reps: int) -> tuple[list[float], LatentSpace]:
     """Seconds per epoch of one autoencoder level (the ``ae`` settings, its ``accelerator`` included): both levels
     trained for ``epochs[0]`` and for ``epochs[1]`` epochs, ``reps`` times each; the per-epoch figure is the slope,
-    so set-up costs (Trainer, data, partition) cancel; one short warm-up run goes first. Returns the ``reps`` slopes and the last latent space
-    trained (``epochs[1]`` epochs per level)."""
+    so set-up costs (Trainer, data, partition) cancel; one short warm-up run goes first. Returns the ``reps``
+    slopes and the last latent space trained (``epochs[1]`` epochs per level)."""
     from neuralcol.stages.autoencoder import train_latent_space
 
     lo_e, hi_e = epochs
