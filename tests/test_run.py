@@ -38,6 +38,20 @@ def test_scape_k8l3_is_scape_with_the_sizes_of_before():
     assert old.source == new.source and old.cpu.test_size == new.cpu.test_size
 
 
+@pytest.mark.parametrize("overrides, kind", [
+    (["dataset=scape"], "pca"), (["experiment=cpu_scape"], "pca"), (["dataset=proc_cloth"], "pca"),
+    (["experiment=cpu_proc_cloth"], "pca"), ([], "pca"), (["dataset=scape", "autoencoder=cpu"], "bilevel"),
+    (["experiment=paper_scape"], "bilevel"), (["experiment=paper_proc_cloth"], "bilevel"),
+    (["dataset=scape_k8l3"], "bilevel"), (["experiment=size_scape"], "bilevel"), (["dataset=anny_body"], "bilevel")])
+def test_latent_space_of_each_preset(overrides, kind):
+    """Issue 40: SCAPE, proc_hand and proc_cloth take a PCA latent space with a fitted box (rule v2, docs/results.md);
+    the paper presets, the bilevel SCAPE layout and the size search keep the autoencoder; the command line wins."""
+    cfg = _compose(overrides)
+    assert cfg.autoencoder.kind == kind
+    assert cfg.box_fit.enabled and list(cfg.box_fit.band) == [0.10, 0.55]
+    assert not _compose([*overrides, "detector=tiny"]).box_fit.enabled
+
+
 def test_scape_cpu_preset_labels_38000_samples():
     # stop 25's registered sweep (docs/results.md): 8 000 + 5 x 6 000 met the FNR bar where 28 000 did not
     cpu = _compose(["dataset=scape"]).dataset.cpu
