@@ -34,7 +34,7 @@ from neuralcol.samples.cache import samples_cache_dir
 from neuralcol.samples.oracle import LatentOracle
 from neuralcol.stages.autoencoder import reference_spaces, train_or_load_latent_space
 from neuralcol.stages.box_check import probe_share
-from neuralcol.stages.box_fit import fit_box, fitted_key, scaled_box
+from neuralcol.stages.box_fit import fit_box, fitted_key, set_scaled_box
 from neuralcol.utils.files import write_json_atomic
 
 
@@ -145,9 +145,7 @@ class RunContext:
         fit_file = self.samples_dir(labeler) / f"box_fit_{tag}.json"
         if fit_file.is_file():
             fit = json.loads(fit_file.read_text())
-            lo, hi = scaled_box(space.box_lo.detach().clone(), space.box_hi.detach().clone(), fit["factor"])
-            space.box_lo.copy_(lo)
-            space.box_hi.copy_(hi)
+            set_scaled_box(space, space.box_lo.detach().clone(), space.box_hi.detach().clone(), fit["factor"])
         else:
             fit = fit_box(space, lambda sp: probe_share(sp, pool, n, seed, desc="fitting the box Z"), band,
                           shrink, grow)

@@ -24,7 +24,7 @@ from neuralcol.data.realistic import clear_mask
 from neuralcol.metrics.reconstruction import relative_vertex_error
 from neuralcol.nn.pca_space import pca_space
 from neuralcol.pipeline import RunContext
-from neuralcol.stages.realistic import realistic_set, round_trip_pd
+from neuralcol.stages.realistic import realistic_set, round_trip_agreement, round_trip_pd
 from neuralcol.utils.threads import pin_threads
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
@@ -69,13 +69,9 @@ def main(argv: list[str] | None = None) -> None:
                     rec = sp.decode(sp.encode(held).float()).float()
                 err = float(relative_vertex_error(rec, held).mean.mean())
                 _, pd_rt = round_trip_pd(sp, v, pool, desc=f"round trips, {basis} PCA {k}")
-                ok = clear & np.isfinite(pd_rt)
-                rt = np.nan_to_num(pd_rt, nan=0.0) > 0
                 row = {"basis": basis, "size": k, "heldout_error": err,
-                       "agreement": float((rt[ok] == truth[ok]).mean()),
-                       "collides_lost": float((~rt[ok & truth]).mean()) if (ok & truth).any() else None,
-                       "collides_added": float(rt[ok & ~truth].mean()) if (ok & ~truth).any() else None,
-                       "n_clear": int(ok.sum())}
+                       **round_trip_agreement(pd_rt, truth, clear),
+                       "n_clear": int((clear & np.isfinite(pd_rt)).sum())}
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     args.out.mkdir(parents=True, exist_ok=True)

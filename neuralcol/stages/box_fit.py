@@ -27,6 +27,13 @@ def scaled_box(lo: torch.Tensor, hi: torch.Tensor, factor: float) -> tuple[torch
     return centre - half, centre + half
 
 
+def set_scaled_box(space, lo: torch.Tensor, hi: torch.Tensor, factor: float) -> None:
+    """Write the box ``[lo, hi]`` scaled by ``factor`` (:func:`scaled_box`) into ``space``'s box buffers."""
+    slo, shi = scaled_box(lo, hi, factor)
+    space.box_lo.copy_(slo)
+    space.box_hi.copy_(shi)
+
+
 def band_distance(share: float | None, band: Sequence[float]) -> float:
     """How far ``share`` lies outside ``band`` (0 inside; inf when nothing was labeled)."""
     if share is None:
@@ -64,9 +71,7 @@ def fit_box(space, probe: Callable[[object], dict], band: Sequence[float], shrin
     trials = []
 
     def trial(factor: float) -> float | None:
-        lo, hi = scaled_box(lo0, hi0, factor)
-        space.box_lo.copy_(lo)
-        space.box_hi.copy_(hi)
+        set_scaled_box(space, lo0, hi0, factor)
         result = probe(space)
         trials.append({"factor": float(factor), **result})
         return result["collision_share"]
@@ -79,9 +84,7 @@ def fit_box(space, probe: Callable[[object], dict], band: Sequence[float], shrin
             if share is None or band_distance(share, band) == 0 or (share < float(band[0])) == above:
                 break  # in the band, or crossed it: more of the ladder only moves further away
     best = min(trials, key=lambda t: (band_distance(t["collision_share"], band), abs(t["factor"] - 1.0)))
-    lo, hi = scaled_box(lo0, hi0, best["factor"])
-    space.box_lo.copy_(lo)
-    space.box_hi.copy_(hi)
+    set_scaled_box(space, lo0, hi0, best["factor"])
     return {"factor": best["factor"], "in_band": band_distance(best["collision_share"], band) == 0,
             "band": [float(b) for b in band], "trials": trials}
 

@@ -129,6 +129,16 @@ def round_trip_pd(space, v: torch.Tensor, pool, desc: str = "labeling round trip
     return z, pool_pd(pool, rt, desc=desc)
 
 
+def round_trip_agreement(pd_round_trip: np.ndarray, truth: np.ndarray, clear: np.ndarray) -> dict:
+    """How often the round trips' exact labels (``pd_round_trip`` (M,), NaN: not labeled) keep ``truth`` (M,) bool on
+    the ``clear`` meshes: ``{"agreement", "collides_lost", "collides_added"}`` (None where no mesh counts)."""
+    ok = clear & np.isfinite(pd_round_trip)
+    rt = np.nan_to_num(pd_round_trip, nan=0.0) > 0
+    return {"agreement": float((rt[ok] == truth[ok]).mean()) if ok.any() else None,
+            "collides_lost": float((~rt[ok & truth]).mean()) if (ok & truth).any() else None,
+            "collides_added": float(rt[ok & ~truth].mean()) if (ok & ~truth).any() else None}
+
+
 def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd: np.ndarray, pool, eps: float,
                        cfg, settings: ALMSettings, margins=(), batch_size: int = 256,
                        mesh_net: torch.nn.Module | None = None, repair=None,
@@ -189,12 +199,7 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
         metrics["round_trip"]["references"] = {}
         for name, ref in references.items():
             _, pd_ref = round_trip_pd(ref, v, pool, desc=f"labeling round trips of {name}")
-            ok = clear & np.isfinite(pd_ref)
-            truth_ref = np.nan_to_num(pd_ref, nan=0.0) > 0
-            metrics["round_trip"]["references"][name] = {
-                "agreement": float((truth_ref[ok] == truth[ok]).mean()) if ok.any() else None,
-                "collides_lost": float((~truth_ref[ok & truth]).mean()) if (ok & truth).any() else None,
-                "collides_added": float(truth_ref[ok & ~truth].mean()) if (ok & ~truth).any() else None}
+            metrics["round_trip"]["references"][name] = round_trip_agreement(pd_ref, truth, clear)
     arrays = {"z": z.numpy(), "logit": logit, "pd": pd, "pd_round_trip": pd_rt, "clear": clear,
               "kind": meshes.kind, "out_of_box": oob}
     if mesh_net is not None:
