@@ -42,9 +42,11 @@ def test_scape_k8l3_is_scape_with_the_sizes_of_before():
     (["dataset=scape"], "pca"), (["experiment=cpu_scape"], "pca"), (["dataset=proc_cloth"], "pca"),
     (["experiment=cpu_proc_cloth"], "pca"), ([], "pca"), (["dataset=scape", "autoencoder=cpu"], "bilevel"),
     (["experiment=paper_scape"], "bilevel"), (["experiment=paper_proc_cloth"], "bilevel"),
-    (["dataset=scape_k8l3"], "bilevel"), (["experiment=size_scape"], "bilevel"), (["dataset=anny_body"], "bilevel")])
+    (["dataset=scape_k8l3"], "bilevel"), (["experiment=size_scape"], "bilevel"), (["dataset=anny_body"], "pca"),
+    (["experiment=cpu_anny_body"], "pca"), (["experiment=paper_anny_body"], "bilevel"),
+    (["dataset=anny_body", "autoencoder=cpu"], "bilevel")])
 def test_latent_space_of_each_preset(overrides, kind):
-    """Issue 40: SCAPE, proc_hand and proc_cloth take a PCA latent space with a fitted box (rule v2, docs/results.md);
+    """Issue 40: SCAPE, proc_hand, proc_cloth and anny_body take a PCA latent space with a fitted box (rule v2, docs/results.md);
     the paper presets, the bilevel SCAPE layout and the size search keep the autoencoder; the command line wins."""
     cfg = _compose(overrides)
     assert cfg.autoencoder.kind == kind

@@ -1,0 +1,130 @@
+"""Penetration-aware geometry of each sub-domain: what the detector over code and mesh reads besides the code
+(issue 41).
+
+A self-collision is two pieces of surface coming close and passing through each other: far apart on the mesh
+(an arm through the torso) or near on it but folded onto each other (a bent finger joint). :func:`choose_part_pairs`
+picks vertex pairs that come close in example meshes while they are apart on the rest mesh:
+
+* a pair is *close* in a mesh when its distance is below ``radius`` and below ``fold_ratio`` times its rest
+  distance (so a pair that is close on the rest mesh already, a surface's own closeness, never counts, while
+  a local fold, whose vertices a few edges apart approach each other, does);
+* pairs within ``min_hops`` edges of each other are never chosen (their closeness is the triangle fan's own);
+* a close pair in a colliding example counts ``colliding_weight``; the most frequent pairs win, up to
+  ``per_part`` pairs for each sub-domain (a pair belongs to the sub-domains of both of its vertices), so every
+  sub-domain gets its own slots and ``S_i`` keeps reading its own surface.
+
+:class:`PartGeometry` measures, for every chosen pair of a mesh, the three numbers of
+:class:`~neuralcol.geometry.contact_pairs.ContactFeatures` (distance and the two signed normal offsets, in units of
+``radius``, clipped) and lays them out per sub-domain as ``(B, K, M, 3)`` with a mask of the filled slots. It needs
+only the pair vertices and the faces around them, so it is computed from the few decoded vertices a code needs
+(``space.decode_vertices``) or from a user's whole mesh alike, and it is differentiable in the vertices.
+
+Symbols: B batch, V vertices, K sub-domains, P chosen pairs, M slots per sub-domain.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+from torch import nn
+
+from neuralcol.geometry.contact_pairs import ContactFeatures, hop_neighbourhood
+
+
+def close_pair_scores(meshes: np.ndarray, collides: np.ndarray, rest: np.ndarray, faces: np.ndarray,
+                      radius: float, min_hops: int, fold_ratio: float,
+                      colliding_weight: float) -> tuple[np.ndarray, np.ndarray]:
+    """How often each vertex pair comes close in ``meshes`` (see the module doc for *close*).
+
+    Returns:
+        (pairs (Q, 2) int64 with i < j, scores (Q,)): every pair close in at least one mesh, by key order.
+    """
+    meshes = np.asarray(meshes, np.float64)
+    rest = np.asarray(rest, np.float64)
+    n_vert = len(rest)
+    if meshes.ndim != 3 or meshes.shape[1:] != rest.shape:
+        raise ValueError(f"meshes have shape {meshes.shape}, expected (N, {n_vert}, 3)")
+    near = hop_neighbourhood(faces, n_vert, min_hops)
+    keys, weights = [], []
+    for v, c in zip(meshes, np.asarray(collides, bool)):
+        pr = cKDTree(v).query_pairs(float(radius), output_type="ndarray")
+        if len(pr) == 0:
+            continue
+        pr = np.sort(pr, axis=1)
+        pr = pr[np.asarray(near[pr[:, 0], pr[:, 1]]).ravel() == 0]
+        d = np.linalg.norm(v[pr[:, 1]] - v[pr[:, 0]], axis=1)
+        d_rest = np.linalg.norm(rest[pr[:, 1]] - rest[pr[:, 0]], axis=1)
+        pr = pr[d < fold_ratio * d_rest]
+        keys.append(pr[:, 0] * n_vert + pr[:, 1])
+        weights.append(np.full(len(pr), float(colliding_weight) if c else 1.0))
+    if not keys:
+        return np.zeros((0, 2), np.int64), np.zeros(0)
+    uniq, inverse = np.unique(np.concatenate(keys), return_inverse=True)
+    score = np.bincount(inverse, weights=np.concatenate(weights), minlength=len(uniq))
+    return np.stack([uniq // n_vert, uniq % n_vert], 1).astype(np.int64), score
+
+
+def choose_part_pairs(pairs: np.ndarray, scores: np.ndarray, partition: np.ndarray, n_parts: int,
+                      per_part: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Up to ``per_part`` best-scored pairs for each sub-domain.
+
+    Args:
+        pairs, scores: candidate pairs and their scores (:func:`close_pair_scores`).
+        partition: (V,) sub-domain of each vertex. n_parts: K. per_part: M.
+
+    Returns:
+        (chosen pairs (P, 2), slots (K, M) int64 indices into the chosen pairs (0 where empty),
+        mask (K, M) bool: filled slots).
+    """
+    partition = np.asarray(partition, np.int64)
+    order = np.lexsort((np.arange(len(scores)), -np.asarray(scores)))  # best first, ties by index
+    per = [[] for _ in range(n_parts)]
+    for q in order:
+        i, j = pairs[q]
+        for k in {int(partition[i]), int(partition[j])}:
+            if len(per[k]) < per_part:
+                per[k].append(int(q))
+        if all(len(p) >= per_part for p in per):
+            break
+    used = sorted({q for p in per for q in p}, key=lambda q: (-scores[q], q))
+    index = {q: n for n, q in enumerate(used)}
+    slots = np.zeros((n_parts, per_part), np.int64)
+    mask = np.zeros((n_parts, per_part), bool)
+    for k, p in enumerate(per):
+        slots[k, :len(p)] = [index[q] for q in p]
+        mask[k, :len(p)] = True
+    chosen = pairs[np.asarray(used, np.int64)] if used else np.zeros((0, 2), np.int64)
+    return chosen.reshape(-1, 2), slots, mask
+
+
+class PartGeometry(nn.Module):
+    """(B, V', 3) vertices -> (B, P, 3) pair features, and their per-sub-domain layout (B, K, M, 3).
+
+    Args:
+        pairs: (P, 2) chosen pairs. slots, mask: (K, M) (:func:`choose_part_pairs`).
+        faces: (F, 3) triangles. radius: the feature unit. clip: features clipped to ``[-clip, clip]``.
+    """
+
+    def __init__(self, pairs: np.ndarray, slots: np.ndarray, mask: np.ndarray, faces: np.ndarray, radius: float,
+                 clip: float = 3.0):
+        super().__init__()
+        self.contact = ContactFeatures(pairs, faces, radius, clip)
+        used = torch.unique(torch.cat([self.contact.pairs.reshape(-1), self.contact.faces.reshape(-1)]))
+        self.register_buffer("vertex_index", used)  # the vertices the features read (pairs and their faces)
+        self.register_buffer("slots", torch.as_tensor(slots, dtype=torch.long))
+        self.register_buffer("mask", torch.as_tensor(mask, dtype=torch.bool))
+
+    @property
+    def n_pairs(self) -> int:
+        return self.contact.n_pairs
+
+    def pair_features(self, vertices: torch.Tensor) -> torch.Tensor:
+        """(B, V, 3) whole meshes -> (B, P, 3) [dist, s_min, s_max] per pair."""
+        f = self.contact(vertices)  # (B, 3 P) as [dist..., s_min..., s_max...]
+        return f.reshape(len(f), 3, -1).transpose(1, 2)
+
+    def per_part(self, pair_feats: torch.Tensor) -> torch.Tensor:
+        """(B, P, 3) -> (B, K, M, 3), empty slots zero (use ``mask``)."""
+        out = pair_feats[:, self.slots]  # (B, K, M, 3)
+        return out * self.mask[None, :, :, None]
