@@ -46,8 +46,9 @@ def test_scape_k8l3_is_scape_with_the_sizes_of_before():
     (["experiment=cpu_anny_body"], "pca"), (["experiment=paper_anny_body"], "bilevel"),
     (["dataset=anny_body", "autoencoder=cpu"], "bilevel")])
 def test_latent_space_of_each_preset(overrides, kind):
-    """Issue 40: SCAPE, proc_hand, proc_cloth and anny_body take a PCA latent space with a fitted box (rule v2, docs/results.md);
-    the paper presets, the bilevel SCAPE layout and the size search keep the autoencoder; the command line wins."""
+    """Issue 40: SCAPE, proc_hand, proc_cloth and anny_body take a PCA latent space with a fitted box (rule v2,
+    docs/results.md); the paper presets, the bilevel SCAPE layout and the size search keep the autoencoder; the
+    command line wins."""
     cfg = _compose(overrides)
     assert cfg.autoencoder.kind == kind
     assert cfg.box_fit.enabled and list(cfg.box_fit.band) == [0.10, 0.55]
