@@ -60,13 +60,21 @@ class CollisionDetector(nn.Module):
             (frozen buffers, differentiable in z). Where the decoder's tanh units switch sharply inside the box
             the label changes sharply in z0 but smoothly in these features (measured in docs/diagnosis.md).
             None: the paper's inputs, Z_all only.
+        geometry: optional :class:`~neuralcol.nn.part_geometry.PartGeometry` (issue 41): each sub-domain's input
+            then also holds an embedding of the contact-pair features of its own slots (``geometry_pool``:
+            ``"linear"``, one affine map per sub-domain of its slots' features then CELU; ``"deepsets"``, a
+            shared per-pair MLP, max and mean over the filled slots), and CSE reads all of them. ``forward`` then
+            takes the per-sub-domain features ``(B, K, M, 3)`` (:meth:`geometry_of_meshes`, or
+            :func:`geometry_of_codes` for decoded codes). None: codes only.
+        geometry_hidden: width of the geometry embedding.
     """
 
     inference_block: int | None = 512
 
     def __init__(self, n_components: int, level2_dim: int, state_dim: int = 64, hidden: int = 128,
                  box_lo: torch.Tensor | None = None, box_hi: torch.Tensor | None = None,
-                 code_features: tuple[torch.Tensor, torch.Tensor, str] | None = None):
+                 code_features: tuple[torch.Tensor, torch.Tensor, str] | None = None,
+                 geometry: nn.Module | None = None, geometry_hidden: int = 32, geometry_pool: str = "linear"):
         super().__init__()
         self.n_components = n_components
         self.level2_dim = level2_dim
@@ -86,7 +94,26 @@ class CollisionDetector(nn.Module):
             self.feature_activation = act
             n_feat = fw.shape[1]
         self.n_code_features = n_feat
-        part_dim = 1 + level2_dim + n_feat
+        self.geometry = geometry
+        self.geometry_pool = None
+        n_geo = 0
+        if geometry is not None:
+            k_geo, m = geometry.mask.shape
+            if k_geo != n_components:
+                raise ValueError(f"geometry has slots for {k_geo} sub-domains, the detector {n_components}")
+            if geometry_pool == "linear":
+                self.slot_w = nn.Parameter(torch.randn(n_components, 3 * m, geometry_hidden) / (3 * m) ** 0.5)
+                self.slot_b = nn.Parameter(torch.zeros(n_components, geometry_hidden))
+                n_geo = geometry_hidden
+            elif geometry_pool == "deepsets":
+                self.phi = _mlp([4, geometry_hidden, geometry_hidden], nn.CELU)
+                n_geo = 2 * geometry_hidden
+            else:
+                raise ValueError(f"geometry_pool={geometry_pool!r}; use 'linear' or 'deepsets'")
+            self.geometry_pool = geometry_pool
+        self.geometry_hidden = int(geometry_hidden)
+        self.n_geometry_features = n_geo
+        part_dim = 1 + level2_dim + n_feat + n_geo
         center, half = torch.zeros(latent_dim), torch.ones(latent_dim)
         if (box_lo is None) != (box_hi is None):
             raise ValueError("give both box_lo and box_hi, or neither")
@@ -97,6 +124,7 @@ class CollisionDetector(nn.Module):
             center, half = (lo + hi) / 2, (hi - lo) / 2
         self.register_buffer("center", center)
         self.register_buffer("half_range", half)
+        # CSE reads [x, code features, geometry embeddings]: D + K H + K G = K part_dim entries
         self.cse = nn.Sequential(_mlp([n_components * part_dim, hidden, state_dim], nn.CELU), nn.Tanh())
         self.cp = _mlp([state_dim + part_dim, hidden, hidden, 1], nn.CELU)
         self.mlp_c = _mlp([n_components, hidden, 1], nn.CELU)
@@ -113,8 +141,9 @@ class CollisionDetector(nn.Module):
             return z0
         return torch.cat([z0, z_all[:, k:].reshape(-1, k, d)], dim=-1)  # (B, K, 1 + d)
 
-    def forward(self, z_all: torch.Tensor) -> DetectorOutput:
-        """Z_all (B, D) -> DetectorOutput.
+    def forward(self, z_all: torch.Tensor, geometry: torch.Tensor | None = None) -> DetectorOutput:
+        """Z_all (B, D) [and, for a detector with geometry, its per-sub-domain pair features (B, K, M, 3)] ->
+        DetectorOutput.
 
         Without gradients on the CPU, a batch larger than ``inference_block`` rows runs block by block: the
         (block, K, hidden) intermediates then stay in cache (with the split CP layer of ``_cp``: 1.9x faster at
@@ -122,15 +151,24 @@ class CollisionDetector(nn.Module):
         """
         if z_all.ndim != 2 or z_all.shape[1] != self.latent_dim:
             raise ValueError(f"z_all has shape {tuple(z_all.shape)}, expected (B, {self.latent_dim})")
+        if (self.geometry is None) != (geometry is None):
+            raise ValueError("this detector reads the codes only: pass no geometry" if self.geometry is None else
+                             "this detector reads the mesh too: pass its geometry (B, K, M, 3) "
+                             "(geometry_of_codes or detector.geometry_of_meshes)")
+        if geometry is not None and (geometry.shape[0] != len(z_all) or geometry.shape[1:] != (
+                *self.geometry.mask.shape, 3)):
+            raise ValueError(f"geometry has shape {tuple(geometry.shape)}, expected ({len(z_all)}, "
+                             f"{', '.join(map(str, self.geometry.mask.shape))}, 3)")
         block = self.inference_block
         if (block and len(z_all) > block and z_all.device.type == "cpu" and not torch.is_grad_enabled()
                 and not torch.jit.is_tracing() and not torch.onnx.is_in_onnx_export()):
-            outs = [self._forward(z_all[i:i + block]) for i in range(0, len(z_all), block)]
+            outs = [self._forward(z_all[i:i + block]) if geometry is None else
+                    self._forward(z_all[i:i + block], geometry[i:i + block]) for i in range(0, len(z_all), block)]
             return DetectorOutput(*(torch.cat(t) for t in zip(*outs)))
-        return self._forward(z_all)
+        return self._forward(z_all) if geometry is None else self._forward(z_all, geometry)
 
-    def inputs(self, z_all: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Z_all (B, D) -> (per-sub-domain inputs of CP (B, K, P), input of CSE (B, D [+ K H]))."""
+    def inputs(self, z_all: torch.Tensor, geometry: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Z_all (B, D) -> (per-sub-domain inputs of CP (B, K, P), input of CSE (B, K P))."""
         x = (z_all - self.center) / self.half_range  # the box -> [-1, 1]
         parts = self.split(x)  # (B, K, 1 + d)
         cse_in = x
@@ -139,11 +177,32 @@ class CollisionDetector(nn.Module):
             if self.feature_activation == "tanh":
                 h = torch.tanh(h)
             parts = torch.cat([parts, h], dim=-1)  # (B, K, 1 + d + H)
-            cse_in = torch.cat([x, h.flatten(1)], dim=-1)  # (B, D + K H)
+            cse_in = torch.cat([cse_in, h.flatten(1)], dim=-1)  # (B, D + K H)
+        if geometry is not None:
+            g = self.geometry_embedding(geometry.to(x.dtype))  # (B, K, G)
+            parts = torch.cat([parts, g], dim=-1)
+            cse_in = torch.cat([cse_in, g.flatten(1)], dim=-1)
         return parts, cse_in
 
-    def _forward(self, z_all: torch.Tensor) -> DetectorOutput:
-        parts, cse_in = self.inputs(z_all)
+    def geometry_embedding(self, geometry: torch.Tensor) -> torch.Tensor:
+        """(B, K, M, 3) per-sub-domain pair features -> (B, K, G) (see ``geometry_pool``)."""
+        mask = self.geometry.mask[None, :, :, None]  # (1, K, M, 1)
+        if self.geometry_pool == "linear":
+            x = (geometry * mask).flatten(2)  # (B, K, 3 M)
+            return F.celu(torch.einsum("bkm,kmh->bkh", x, self.slot_w) + self.slot_b)
+        x = torch.cat([geometry, mask.expand(*geometry.shape[:3], 1).to(geometry)], -1)  # the fill flag
+        h = self.phi(x)  # (B, K, M, G)
+        hmax = h.masked_fill(~mask, -1e4).amax(2)
+        hmax = torch.where(self.geometry.mask.any(1)[None, :, None], hmax, torch.zeros_like(hmax))
+        hmean = (h * mask).sum(2) / mask.sum(2).clamp_min(1)
+        return torch.cat([hmax, hmean], -1)
+
+    def geometry_of_meshes(self, vertices: torch.Tensor) -> torch.Tensor:
+        """Whole meshes (B, V, 3) -> the per-sub-domain pair features (B, K, M, 3) this detector reads."""
+        return self.geometry.per_part(self.geometry.pair_features(vertices))
+
+    def _forward(self, z_all: torch.Tensor, geometry: torch.Tensor | None = None) -> DetectorOutput:
+        parts, cse_in = self.inputs(z_all, geometry)
         s0 = self.cse(cse_in)  # (B, S)
         s = self._cp(s0, parts)  # (B, K)
         logit = self.mlp_c(s)[:, 0]
@@ -293,7 +352,10 @@ def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, p
                      "width": 1.0},  # widths as built
              "method": method["name"], "pd_unit": pd_unit,
              "code_features": None if net.feature_activation is None else
-             {"hidden": net.n_code_features, "activation": net.feature_activation}}
+             {"hidden": net.n_code_features, "activation": net.feature_activation},
+             "geometry": None if net.geometry is None else
+             {"pool": net.geometry_pool, "hidden": int(net.geometry_hidden), "radius": net.geometry.contact.radius,
+              "clip": net.geometry.contact.clip}}
     blob = {"state": net.state_dict(), **plain_values(facts, Path(path).name)}
     with atomic_path(path) as tmp:
         torch.save(blob, tmp)
@@ -312,7 +374,17 @@ def load_detector(path: str | Path, map_location="cpu") -> tuple[CollisionDetect
     if cf is not None:  # shapes only; the values come with the state dict
         zeros = torch.zeros(blob["n_components"], int(cf["hidden"]))
         feats = (zeros, zeros, cf["activation"])
+    geo, gf = None, blob.get("geometry")
+    if gf is not None:  # the pairs, faces and slots come with the state dict
+        from neuralcol.nn.part_geometry import PartGeometry
+
+        st = blob["state"]
+        geo = PartGeometry(st["geometry.contact.pairs"].numpy(), st["geometry.slots"].numpy(),
+                           st["geometry.mask"].numpy(), st["geometry.contact.faces"].numpy(), float(gf["radius"]),
+                           float(gf["clip"]))
     net = CollisionDetector(blob["n_components"], blob["level2_dim"], state_dim=int(blob["net"]["state_dim"]),
-                            hidden=int(blob["net"]["hidden"]), code_features=feats)
+                            hidden=int(blob["net"]["hidden"]), code_features=feats, geometry=geo,
+                            geometry_hidden=int(gf["hidden"]) if gf else 32,
+                            geometry_pool=gf["pool"] if gf else "linear")
     net.load_state_dict(blob["state"])
     return net, {k: v for k, v in blob.items() if k != "state"}
