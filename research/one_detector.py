@@ -295,9 +295,10 @@ def main():
     if a.gbt:
         from sklearn.ensemble import HistGradientBoostingClassifier
 
-        y = rows.collides.astype(bool)
-        for name, x, xs in (("gbt_code", rows.z, {k: v[0].numpy() for k, v in sets.items()}),
-                            ("gbt_code_pairs", np.concatenate([rows.z, f_dc.reshape(len(f_dc), -1)], 1),
+        y = (pd > 0).numpy()  # the training rows' labels (realistic training meshes included)
+        zn = z.numpy()
+        for name, x, xs in (("gbt_code", zn, {k: v[0].numpy() for k, v in sets.items()}),
+                            ("gbt_code_pairs", np.concatenate([zn, f_dc.reshape(len(f_dc), -1)], 1),
                              {"uz": np.concatenate([test.z, f_test.reshape(len(f_test), -1)], 1),
                               "realistic": np.concatenate([rp["z"][clear], f_real[clear].reshape(clear.sum(), -1)],
                                                           1)})):
