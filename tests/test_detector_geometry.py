@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from neuralcol.nn.detector import CollisionDetector, load_detector, save_detector
-from neuralcol.nn.part_geometry import PartGeometry, choose_part_pairs, geometry_of_codes
+from neuralcol.nn.part_geometry import DetectorOnCodes, PartGeometry, choose_part_pairs, geometry_of_codes
 
 # a strip of 8 vertices (two rows of 4) and 6 triangles; 2 sub-domains (left and right halves)
 REST = np.array([[x, y, 0.0] for y in (0.0, 1.0) for x in range(4)])
@@ -103,3 +103,19 @@ def test_blocked_inference_and_save_load_keep_the_outputs(tmp_path):
     with torch.no_grad():
         torch.testing.assert_close(back.eval()(z, g).logit, blocked)
     torch.testing.assert_close(back.geometry.vertex_index, det.geometry.vertex_index)
+
+
+def test_detector_on_codes_is_a_function_of_codes_alone():
+    torch.manual_seed(4)
+    space = LinearSpace(2, seed=5)
+    det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry()).double()
+    on_codes = DetectorOnCodes(det, space)
+    z = torch.randn(6, 2, dtype=torch.float64, requires_grad=True)
+    out = on_codes(z)
+    torch.testing.assert_close(out.logit, det(z, det.geometry_of_meshes(space.decode(z))).logit)
+    # its parameters and state are the detector's only, and the gradient in z reaches through the decode
+    assert {k for k, _ in on_codes.named_parameters()} == {f"detector.{k}" for k, _ in det.named_parameters()}
+    out.logit.sum().backward()
+    assert z.grad is not None and torch.all(torch.isfinite(z.grad)) and z.grad.abs().sum() > 0
+    code_only = CollisionDetector(2, 0, state_dim=6, hidden=8).double()
+    torch.testing.assert_close(DetectorOnCodes(code_only, space)(z).logit, code_only(z).logit)

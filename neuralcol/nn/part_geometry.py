@@ -137,3 +137,31 @@ def geometry_of_codes(geometry: PartGeometry, space, z_all: torch.Tensor) -> tor
     part = space.decode_vertices(z_all, idx.cpu().numpy())  # (B, V', 3)
     full = part.new_zeros(len(z_all), space.rest_vertices.shape[0], 3).index_copy(1, idx.to(part.device), part)
     return geometry.per_part(geometry.pair_features(full))
+
+
+class DetectorOnCodes(nn.Module):
+    """A detector as a function of codes alone: ``z -> detector(z, geometry of decode(z))``.
+
+    Everything that asks the detector about codes (the acquisition, the Newton projector, the handler's constraint,
+    the cascade) takes this instead of the detector itself and stays unchanged: for a detector that reads the
+    codes only it is the detector; for one that reads the mesh too it decodes, differentiably, the vertices the
+    geometry needs. The latent space is held outside the module's parameters and state (it is not trained here).
+
+    Args:
+        detector: a :class:`~neuralcol.nn.detector.CollisionDetector`.
+        space: the latent space its codes belong to.
+    """
+
+    def __init__(self, detector: nn.Module, space):
+        super().__init__()
+        self.detector = detector
+        self._space = (space,)  # a tuple: not registered as a submodule
+
+    @property
+    def space(self):
+        return self._space[0]
+
+    def forward(self, z_all: torch.Tensor):
+        if self.detector.geometry is None:
+            return self.detector(z_all)
+        return self.detector(z_all, geometry_of_codes(self.detector.geometry, self.space, z_all))
