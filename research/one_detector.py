@@ -172,6 +172,8 @@ def main():
     ap.add_argument("--fold-ratio", type=float, default=0.5)
     ap.add_argument("--radius", type=float, default=0.02)
     ap.add_argument("--select-stride", type=int, default=8)
+    ap.add_argument("--select-from", default="dc", choices=["dc", "uniform"],
+                    help="examples for the pair choice: decoded D_c rows (labeled) or unlabeled U(Z) codes")
     ap.add_argument("--epochs", type=int, default=60)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--gbt", action="store_true")
@@ -211,10 +213,17 @@ def main():
     print(f"run {a.run_dir}: D_c {len(rows.z)}, test {len(test.z)}, realistic clear {clear.sum()}", flush=True)
 
     # pairs from a stride of decoded D_c
-    sel = np.arange(0, len(rows.z), a.select_stride)
+    if a.select_from == "dc":  # a stride of the decoded D_c, with their labels
+        sel = np.arange(0, len(rows.z), a.select_stride)
+        sel_z = torch.as_tensor(rows.z[sel], dtype=torch.float32)
+        sel_y = rows.collides[sel]
+    else:  # unlabeled U(Z) codes, as many as the stride would take, each counted once (what exists before D_c)
+        from neuralcol.samples.uniform import uniform_codes
+
+        sel_z = uniform_codes(space, 777, 0, -(-len(rows.z) // a.select_stride))
+        sel_y = np.zeros(len(sel_z), bool)
     with torch.no_grad():
-        sel_v = space.decode(torch.as_tensor(rows.z[sel], dtype=torch.float32)).double().numpy()
-    sel_y = rows.collides[sel]
+        sel_v = space.decode(sel_z).double().numpy()
     if a.realistic_train:  # the mesh detector's pair choice saw them too
         rt = np.load(max(sdir.glob("realistic_train_*.npz"), key=lambda p: p.stat().st_mtime))
         sel_v = np.concatenate([sel_v, rt["vertices"]])

@@ -83,3 +83,30 @@ def test_truncated_or_corrupted_file_is_named(tmp_path):
     with CollisionStore(tmp_path / "flipped.h5", 6, 2) as store, \
             pytest.raises(StoreCorruptedError, match=r"flipped\.h5: its data is corrupted"):
         store.read()
+
+
+def test_pair_features_are_kept_with_their_rows_and_checked(tmp_path):
+    """Issue 41: a store created for a detector that reads the mesh keeps each row's pair features."""
+    rng = np.random.default_rng(5)
+    path = tmp_path / "dc.h5"
+    g1, g2 = rng.normal(size=(4, 3, 3)), rng.normal(size=(2, 3, 3))
+    with CollisionStore(path, 6, 2, n_pairs=3) as store:
+        store.append(round_=0, geometry=g1, **_rows(rng, 4))
+        store.append(round_=1, geometry=g2, **_rows(rng, 2))
+        with pytest.raises(ValueError, match=r"every row needs its pair features \(1, 3, 3\)"):
+            store.append(round_=1, **_rows(rng, 1))
+        with pytest.raises(ValueError, match=r"geometry has shape \(1, 2, 3\), expected \(1, 3, 3\)"):
+            store.append(round_=1, geometry=g1[:1, :2], **_rows(rng, 1))
+    with CollisionStore(path, 6, 2, n_pairs=None) as store:  # a reader takes what is there
+        rows = store.read()
+        np.testing.assert_allclose(rows.geometry, np.concatenate([g1, g2]).astype(np.float32))
+        assert store.read([1, 5]).geometry.shape == (2, 3, 3) and len(store) == 6
+    with pytest.raises(StoreCorruptedError, match="3 contact pairs per row, expected 0"):
+        CollisionStore(path, 6, 2)
+    with CollisionStore(tmp_path / "plain.h5", 6, 2) as plain:
+        plain.append(round_=0, **_rows(rng, 2))
+        assert plain.read().geometry is None
+        with pytest.raises(ValueError, match="keeps no pair features"):
+            plain.append(round_=0, geometry=g2, **_rows(rng, 2))
+    with pytest.raises(StoreCorruptedError, match="0 contact pairs per row, expected 3"):
+        CollisionStore(tmp_path / "plain.h5", 6, 2, n_pairs=3)

@@ -3,7 +3,9 @@
 Columns (N rows): ``id`` int64 (0, 1, 2, ... in append order), ``z`` (N, D) float32, ``pd`` float32,
 ``pd_sub`` (N, K) float32, ``collides`` int8, ``subset`` int8 (0 D_p, 1 D_n, 2 D_b), ``round`` int16 (the
 active-learning round that added the row; 0 = bootstrap), ``origin`` int8 (0 uniform sample from U(Z),
-1 projected onto the detector's boundary).
+1 projected onto the detector's boundary); for a detector that reads the mesh too (issue 41), ``geometry``
+(N, P, 3) float32: the contact-pair features of each row's mesh, computed when the row is labeled, so training never
+decodes again (a store is created with or without it; the file attribute ``geometry_pairs`` is P).
 
 Integrity: every column is stored with HDF5's fletcher32 checksum per chunk, so a corrupted or truncated
 file fails on open or read with :class:`StoreCorruptedError` naming it.
@@ -51,6 +53,7 @@ class CollisionRows(NamedTuple):
     round: np.ndarray
     origin: np.ndarray
     id: np.ndarray
+    geometry: np.ndarray | None = None  # (B, P, 3) pair features, stores with geometry only
 
 
 _COLUMNS = {"z": np.float32, "pd": np.float32, "pd_sub": np.float32, "collides": np.int8, "subset": np.int8,
@@ -68,9 +71,11 @@ class CollisionStore:
         path: the ``.h5`` file (created if missing).
         latent_dim: D.
         n_parts: K.
+        n_pairs: P, the contact pairs whose features each row keeps (a store created with P > 0 has the
+            ``geometry`` column); 0: none; None: whatever an existing store holds (readers).
     """
 
-    def __init__(self, path: str | os.PathLike, latent_dim: int, n_parts: int):
+    def __init__(self, path: str | os.PathLike, latent_dim: int, n_parts: int, n_pairs: int | None = 0):
         import h5py
 
         self.path = Path(path)
@@ -90,8 +95,18 @@ class CollisionStore:
                 # fletcher32: a checksum per chunk, so corrupted bytes fail the read instead of passing as data
                 self._h5.create_dataset(name, shape=shape, maxshape=maxshape, dtype=dtype, chunks=chunks,
                                         fletcher32=True)
+            if n_pairs:
+                self._h5.create_dataset("geometry", shape=(0, int(n_pairs), 3), maxshape=(None, int(n_pairs), 3),
+                                        dtype=np.float32, chunks=(256, int(n_pairs), 3), fletcher32=True)
+            self._h5.attrs["geometry_pairs"] = int(n_pairs or 0)
             self._h5.attrs["committed"] = 0
             self._h5.flush()
+        self.n_pairs = int(self._h5.attrs.get("geometry_pairs", 0))
+        if n_pairs is not None and int(n_pairs) != self.n_pairs:
+            self.close()
+            raise StoreCorruptedError(
+                f"{self.path}: keeps the features of {self.n_pairs} contact pairs per row, expected {int(n_pairs)}; "
+                "it belongs to another detector (move it away to start a new D_c)")
         self._check()
 
     def _check(self) -> None:
@@ -104,7 +119,7 @@ class CollisionStore:
                 f"{self.path}: holds codes of size {h5['z'].shape[1]} and {h5['pd_sub'].shape[1]} parts, expected "
                 f"{self.latent_dim} and {self.n_parts}; it belongs to another latent space")
         n = int(h5.attrs["committed"])
-        short = [c for c in _COLUMNS if h5[c].shape[0] < n]
+        short = [c for c in self._columns() if h5[c].shape[0] < n]
         if short:
             raise StoreCorruptedError(f"{self.path}: columns {short} are shorter than the committed {n} rows "
                                       "(truncated file)")
@@ -117,8 +132,12 @@ class CollisionStore:
     def __len__(self) -> int:
         return int(self._h5.attrs["committed"])
 
-    def append(self, z, pd, pd_sub, collides, subset, round_: int, origin) -> np.ndarray:
-        """Append B labeled rows; returns their ids (B,). Crash-safe (see the module docstring)."""
+    def _columns(self) -> dict:
+        return {**_COLUMNS, "geometry": np.float32} if self.n_pairs else _COLUMNS
+
+    def append(self, z, pd, pd_sub, collides, subset, round_: int, origin, geometry=None) -> np.ndarray:
+        """Append B labeled rows (with their pair features ``geometry`` (B, P, 3) in a store that keeps them);
+        returns their ids (B,). Crash-safe (see the module docstring)."""
         z = np.asarray(z, dtype=np.float32)
         b = len(z)
         if z.shape != (b, self.latent_dim):
@@ -131,10 +150,17 @@ class CollisionStore:
         for name in ("pd", "collides", "subset"):
             if cols[name].shape != (b,):
                 raise ValueError(f"{name} has shape {cols[name].shape}, expected ({b},)")
+        if (geometry is None) != (self.n_pairs == 0):
+            raise ValueError(f"{self.path}: " + ("this store keeps no pair features" if geometry is not None else
+                                                 f"every row needs its pair features ({b}, {self.n_pairs}, 3)"))
+        if geometry is not None:
+            cols["geometry"] = np.asarray(geometry)
+            if cols["geometry"].shape != (b, self.n_pairs, 3):
+                raise ValueError(f"geometry has shape {cols['geometry'].shape}, expected ({b}, {self.n_pairs}, 3)")
         start = len(self)
         ids = np.arange(start, start + b, dtype=np.int64)
         cols["id"] = ids
-        for name, dtype in _COLUMNS.items():
+        for name, dtype in self._columns().items():
             ds = self._h5[name]
             if ds.shape[0] < start + b:
                 ds.resize(start + b, axis=0)
@@ -157,7 +183,7 @@ class CollisionStore:
         """Committed rows (all, or ``index`` into them)."""
         n = len(self)
         try:
-            cols = {name: self._h5[name][:n] for name in _COLUMNS}
+            cols = {name: self._h5[name][:n] for name in self._columns()}
         except OSError as exc:
             raise StoreCorruptedError(f"{self.path}: its data is corrupted ({exc}); restore it from a backup, or "
                                       "move it away to start a new D_c (a run then restarts from round 0)") from exc
