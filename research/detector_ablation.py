@@ -37,7 +37,7 @@ def _read(path: Path):
 
 def train_once(pool, test, n, k, d2, normalize, pd_unit, seed, epochs=100):
     torch.manual_seed(seed)
-    rows = pool._replace(**{f: getattr(pool, f)[:n] for f in pool._fields})
+    rows = pool.select(slice(0, n))
     z, pd, pd_sub, subset = detector_targets(rows, pd_unit, 3.0)
     lo, hi = torch.as_tensor(pool.z.min(0)), torch.as_tensor(pool.z.max(0))
     net = CollisionDetector(k, d2, 64, 128, *((lo, hi) if normalize else (None, None)))

@@ -197,7 +197,7 @@ def cmd_selection(args) -> dict:
 
     def sub(idx):
         idx = np.sort(np.asarray(idx))
-        return pool._replace(**{f: getattr(pool, f)[idx] for f in pool._fields})
+        return pool.select(idx)
 
     for seed in args.seeds:
         for mode in ("uniform", "uncertainty"):

@@ -101,11 +101,12 @@ def test_pair_features_are_kept_with_their_rows_and_checked(tmp_path):
         rows = store.read()
         np.testing.assert_allclose(rows.geometry, np.concatenate([g1, g2]).astype(np.float32))
         assert store.read([1, 5]).geometry.shape == (2, 3, 3) and len(store) == 6
+        np.testing.assert_array_equal(rows.select(rows.round == 1).geometry, rows.geometry[4:])
     with pytest.raises(StoreCorruptedError, match="3 contact pairs per row, expected 0"):
         CollisionStore(path, 6, 2)
     with CollisionStore(tmp_path / "plain.h5", 6, 2) as plain:
         plain.append(round_=0, **_rows(rng, 2))
-        assert plain.read().geometry is None
+        assert plain.read().geometry is None and plain.read().select(slice(0, 1)).geometry is None
         with pytest.raises(ValueError, match="keeps no pair features"):
             plain.append(round_=0, geometry=g2, **_rows(rng, 2))
     with pytest.raises(StoreCorruptedError, match="0 contact pairs per row, expected 3"):

@@ -31,7 +31,7 @@ from neuralcol.samples.store import CollisionRows, Origin
 
 def take_rows(rows: CollisionRows, n: int) -> CollisionRows:
     """The first ``n`` rows."""
-    return rows._replace(**{f: getattr(rows, f)[:n] for f in rows._fields})
+    return rows.select(slice(0, n))
 
 
 def fit_rows(net: CollisionDetector, rows: CollisionRows, test: CollisionRows, pd_unit: float, det: dict,

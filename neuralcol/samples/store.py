@@ -55,6 +55,10 @@ class CollisionRows(NamedTuple):
     id: np.ndarray
     geometry: np.ndarray | None = None  # (B, P, 3) pair features, stores with geometry only
 
+    def select(self, index) -> CollisionRows:
+        """The rows ``index`` (a slice, mask or indices) of every column (``geometry`` stays None if absent)."""
+        return CollisionRows(*(None if col is None else col[index] for col in self))
+
 
 _COLUMNS = {"z": np.float32, "pd": np.float32, "pd_sub": np.float32, "collides": np.int8, "subset": np.int8,
             "round": np.int16, "origin": np.int8, "id": np.int64}

@@ -154,7 +154,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
                 logger.experiment.add_scalar(f"test/{key}", last[key], global_step=last["dataset_size"])
             if int(det.get("tensorboard_examples", 0)) > 0:  # a few of the round's new samples, decoded
                 rows = dm.store.read()
-                rows = CollisionRows(*(None if col is None else col[rows.round == last["round"]] for col in rows))
+                rows = rows.select(rows.round == last["round"])
                 log_round_examples(logger.experiment, space, rows, int(last["dataset_size"]),
                                    RunDir(run_dir).round_examples, int(det["tensorboard_examples"]))
         print(f"[{name}] round {last['round']}: |D_c| = {last['dataset_size']}, test accuracy "
