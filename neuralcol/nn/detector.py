@@ -64,8 +64,9 @@ class CollisionDetector(nn.Module):
             then also holds an embedding of the contact-pair features of its own slots (``geometry_pool``:
             ``"linear"``, one affine map per sub-domain of its slots' features then CELU; ``"deepsets"``, a
             shared per-pair MLP, max and mean over the filled slots), and CSE reads all of them. ``forward`` then
-            takes the per-sub-domain features ``(B, K, M, 3)`` (:meth:`geometry_of_meshes`, or
-            :func:`geometry_of_codes` for decoded codes). None: codes only.
+            takes the pair features ``(B, P, 3)`` of the meshes (:meth:`geometry_of_meshes`, or
+            :func:`~neuralcol.nn.part_geometry.geometry_of_codes` for decoded codes; what D_c stores). None: codes
+            only.
         geometry_hidden: width of the geometry embedding.
     """
 
@@ -142,7 +143,7 @@ class CollisionDetector(nn.Module):
         return torch.cat([z0, z_all[:, k:].reshape(-1, k, d)], dim=-1)  # (B, K, 1 + d)
 
     def forward(self, z_all: torch.Tensor, geometry: torch.Tensor | None = None) -> DetectorOutput:
-        """Z_all (B, D) [and, for a detector with geometry, its per-sub-domain pair features (B, K, M, 3)] ->
+        """Z_all (B, D) [and, for a detector with geometry, the pair features of the meshes (B, P, 3)] ->
         DetectorOutput.
 
         Without gradients on the CPU, a batch larger than ``inference_block`` rows runs block by block: the
@@ -153,12 +154,11 @@ class CollisionDetector(nn.Module):
             raise ValueError(f"z_all has shape {tuple(z_all.shape)}, expected (B, {self.latent_dim})")
         if (self.geometry is None) != (geometry is None):
             raise ValueError("this detector reads the codes only: pass no geometry" if self.geometry is None else
-                             "this detector reads the mesh too: pass its geometry (B, K, M, 3) "
+                             "this detector reads the mesh too: pass its pair features (B, P, 3) "
                              "(geometry_of_codes or detector.geometry_of_meshes)")
-        if geometry is not None and (geometry.shape[0] != len(z_all) or geometry.shape[1:] != (
-                *self.geometry.mask.shape, 3)):
+        if geometry is not None and tuple(geometry.shape) != (len(z_all), self.geometry.n_pairs, 3):
             raise ValueError(f"geometry has shape {tuple(geometry.shape)}, expected ({len(z_all)}, "
-                             f"{', '.join(map(str, self.geometry.mask.shape))}, 3)")
+                             f"{self.geometry.n_pairs}, 3)")
         block = self.inference_block
         if (block and len(z_all) > block and z_all.device.type == "cpu" and not torch.is_grad_enabled()
                 and not torch.jit.is_tracing() and not torch.onnx.is_in_onnx_export()):
@@ -179,7 +179,7 @@ class CollisionDetector(nn.Module):
             parts = torch.cat([parts, h], dim=-1)  # (B, K, 1 + d + H)
             cse_in = torch.cat([cse_in, h.flatten(1)], dim=-1)  # (B, D + K H)
         if geometry is not None:
-            g = self.geometry_embedding(geometry.to(x.dtype))  # (B, K, G)
+            g = self.geometry_embedding(self.geometry.per_part(geometry.to(x.dtype)))  # (B, K, G)
             parts = torch.cat([parts, g], dim=-1)
             cse_in = torch.cat([cse_in, g.flatten(1)], dim=-1)
         return parts, cse_in
@@ -198,8 +198,8 @@ class CollisionDetector(nn.Module):
         return torch.cat([hmax, hmean], -1)
 
     def geometry_of_meshes(self, vertices: torch.Tensor) -> torch.Tensor:
-        """Whole meshes (B, V, 3) -> the per-sub-domain pair features (B, K, M, 3) this detector reads."""
-        return self.geometry.per_part(self.geometry.pair_features(vertices))
+        """Whole meshes (B, V, 3) -> the pair features (B, P, 3) this detector reads."""
+        return self.geometry.pair_features(vertices)
 
     def _forward(self, z_all: torch.Tensor, geometry: torch.Tensor | None = None) -> DetectorOutput:
         parts, cse_in = self.inputs(z_all, geometry)

@@ -131,12 +131,12 @@ class PartGeometry(nn.Module):
 
 
 def geometry_of_codes(geometry: PartGeometry, space, z_all: torch.Tensor) -> torch.Tensor:
-    """Codes (B, D) -> the per-sub-domain pair features (B, K, M, 3) of the meshes they decode to, decoding only
-    the vertices the features read (``space.decode_vertices``); differentiable in ``z_all``."""
+    """Codes (B, D) -> the pair features (B, P, 3) of the meshes they decode to, decoding only the vertices the
+    features read (``space.decode_vertices``); differentiable in ``z_all``."""
     idx = geometry.vertex_index
     part = space.decode_vertices(z_all, idx.cpu().numpy())  # (B, V', 3)
     full = part.new_zeros(len(z_all), space.rest_vertices.shape[0], 3).index_copy(1, idx.to(part.device), part)
-    return geometry.per_part(geometry.pair_features(full))
+    return geometry.pair_features(full)
 
 
 class DetectorOnCodes(nn.Module):
