@@ -118,3 +118,32 @@ def test_detector_on_codes_is_a_function_of_codes_alone():
     assert z.grad is not None and torch.all(torch.isfinite(z.grad)) and z.grad.abs().sum() > 0
     code_only = CollisionDetector(2, 0, state_dim=6, hidden=8).double()
     torch.testing.assert_close(DetectorOnCodes(code_only, space)(z).logit, code_only(z).logit)
+
+
+def test_training_reads_the_pair_features_stored_with_dc(tmp_path):
+    """D_c keeps each row's pair features; the datamodule serves them and the LightningModule feeds them in."""
+    import lightning as L
+
+    from neuralcol.lit.detector import DetectorLitModule
+    from neuralcol.samples.datamodule import CollisionDataModule
+
+    torch.manual_seed(6)
+    rng = np.random.default_rng(6)
+    space = LinearSpace(2, seed=7)
+    det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry())
+    z = rng.uniform(-1, 1, size=(40, 2)).astype(np.float32)
+    pairs = geometry_of_codes(det.geometry, space, torch.as_tensor(z, dtype=torch.float64)).float().numpy()
+    pd = rng.normal(size=40) * 0.01
+    dm = CollisionDataModule(tmp_path / "dc.h5", 2, 2, batch_size=8, pd_unit=0.01, pd_clip=0.25,
+                             n_pairs=det.geometry.n_pairs)
+    dm.append(z, pd, np.stack([pd, pd], 1), pd > 0, np.where(pd > 0, 0, 1), 0, 0, geometry=pairs)
+    batch = next(iter(dm.train_dataloader()))
+    assert len(batch) == 5 and batch[4].shape == (8, det.geometry.n_pairs, 3)
+    module = DetectorLitModule(det, optimizer=torch.optim.Adam, lr=1e-2, w_pd=5, w_pdsum=0.2, w_r=2, w_ce=2,
+                               w_b=0.5, margin=0.01, temperature=0.1)
+    before = {k: v.clone() for k, v in det.state_dict().items()}
+    L.Trainer(max_epochs=1, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+              enable_model_summary=False, num_sanity_val_steps=0, accelerator="cpu").fit(
+        module, train_dataloaders=dm.train_dataloader(), val_dataloaders=dm.val_dataloader())
+    assert not torch.equal(before["slot_w"], det.state_dict()["slot_w"]), "the geometry embedding was trained"
+    dm.close()

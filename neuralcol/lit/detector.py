@@ -11,7 +11,8 @@ from neuralcol.nn.detector import CollisionDetector, detector_losses
 
 
 class DetectorLitModule(SplitStepModule):
-    """Trains a :class:`~neuralcol.nn.detector.CollisionDetector` on batches ``(z, pd, pd_sub, subset)``.
+    """Trains a :class:`~neuralcol.nn.detector.CollisionDetector` on batches ``(z, pd, pd_sub, subset)`` (and the
+    rows' pair features as a fifth tensor for a detector that reads the mesh too).
 
     Args:
         net: the detector.
@@ -41,8 +42,8 @@ class DetectorLitModule(SplitStepModule):
         return self.net(z)
 
     def step(self, batch, split: str) -> torch.Tensor:
-        z, pd, pd_sub, subset = batch
-        out = self.net(z)
+        z, pd, pd_sub, subset, *geometry = batch  # geometry: the rows' pair features, for a detector reading them
+        out = self.net(z, *geometry)
         losses = detector_losses(out, pd, pd_sub, subset, **self.loss_kwargs)
         acc = ((out.logit > 0) == (pd > 0)).float().mean()
         bs = len(z)

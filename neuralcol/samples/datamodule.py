@@ -78,16 +78,17 @@ class CollisionDataModule(L.LightningDataModule):
         pd_clip: upper clip of the scaled PD targets.
         pd_floor: lower clip of the scaled PD targets (< 0), or None for none.
         use_boundary_set: keep D_b (``supv_bd``, ``active``) or fold it into D_p (``supv``).
+        n_pairs: P, the contact pairs whose features each row keeps (0: none; a detector that reads codes only).
         seed: shuffling seed (the order of epoch e depends on ``(seed, e)`` only, so resumed runs replay it).
     """
 
     def __init__(self, path: str | os.PathLike, latent_dim: int, n_parts: int, batch_size: int, pd_unit: float,
                  pd_clip: float, use_boundary_set: bool = True, seed: int = 0, val_batch_size: int = 8192,
-                 pd_floor: float | None = None):
+                 pd_floor: float | None = None, n_pairs: int = 0):
         super().__init__()
         if batch_size < 1:
             raise ValueError(f"batch_size={batch_size} must be >= 1")
-        self.store = CollisionStore(path, latent_dim, n_parts)
+        self.store = CollisionStore(path, latent_dim, n_parts, n_pairs)
         self.batch_size = int(batch_size)
         self.val_batch_size = int(val_batch_size)
         self.pd_unit = float(pd_unit)
@@ -101,9 +102,10 @@ class CollisionDataModule(L.LightningDataModule):
     def __len__(self) -> int:
         return len(self.store)
 
-    def append(self, z, pd, pd_sub, collides, subset, round_: int, origin) -> np.ndarray:
-        """Append labeled rows to D_c (crash-safe) and reload the tensors; returns the new row ids."""
-        ids = self.store.append(z, pd, pd_sub, collides, subset, round_, origin)
+    def append(self, z, pd, pd_sub, collides, subset, round_: int, origin, geometry=None) -> np.ndarray:
+        """Append labeled rows (with their pair features in a store that keeps them) to D_c (crash-safe) and
+        reload the tensors; returns the new row ids."""
+        ids = self.store.append(z, pd, pd_sub, collides, subset, round_, origin, geometry)
         self.refresh()
         return ids
 
@@ -112,6 +114,8 @@ class CollisionDataModule(L.LightningDataModule):
         rows = self.store.read()
         val = self.store.split_mask()
         tensors = detector_targets(rows, self.pd_unit, self.pd_clip, self.use_boundary_set, self.pd_floor)
+        if rows.geometry is not None:  # batches become (z, pd, pd_sub, subset, pair features)
+            tensors = (*tensors, torch.as_tensor(rows.geometry, dtype=torch.float32))
         self._train = tuple(t[torch.as_tensor(~val)] for t in tensors)
         self._val = tuple(t[torch.as_tensor(val)] for t in tensors)
 
