@@ -186,7 +186,7 @@ def main():
     a = ap.parse_args()
 
     from neuralcol import load_run
-    from neuralcol.nn.part_geometry import PartGeometry, choose_part_pairs, close_pair_scores
+    from neuralcol.nn.part_geometry import choose_geometry
     from neuralcol.samples.datamodule import detector_targets
     from neuralcol.samples.store import CollisionStore
 
@@ -206,10 +206,6 @@ def main():
     real = np.load(real_file)
     assert len(real["pd"]) == len(rp["z"]), (real_file, len(real["pd"]), len(rp["z"]))
     clear = rp["clear"].astype(bool)
-    rest = space.rest_vertices.cpu().numpy().astype(np.float64)
-    faces = space.faces.cpu().numpy()
-    diag = float(np.linalg.norm(np.ptp(rest, 0)))
-    radius = a.radius * diag
     print(f"run {a.run_dir}: D_c {len(rows.z)}, test {len(test.z)}, realistic clear {clear.sum()}", flush=True)
 
     # pairs from a stride of decoded D_c
@@ -228,12 +224,11 @@ def main():
         rt = np.load(max(sdir.glob("realistic_train_*.npz"), key=lambda p: p.stat().st_mtime))
         sel_v = np.concatenate([sel_v, rt["vertices"]])
         sel_y = np.concatenate([sel_y, rt["pd"] > 0])
-    pairs, scores = close_pair_scores(sel_v, sel_y, rest, faces, radius, a.min_hops, a.fold_ratio, 3.0)
-    part = space.partition.cpu().numpy()
-    chosen, slots, mask = choose_part_pairs(pairs, scores, part, space.n_parts, a.per_part)
-    geo = PartGeometry(chosen, slots, mask, faces, radius)
+    geo = choose_geometry(space, sel_v, sel_y, radius=a.radius, min_hops=a.min_hops, fold_ratio=a.fold_ratio,
+                          per_part=a.per_part)
+    chosen, mask = geo.contact.pairs.numpy(), geo.mask.numpy()
     t_pairs = time.perf_counter() - t0
-    print(f"{len(pairs)} candidate pairs, {len(chosen)} chosen, slots filled {mask.mean():.2f}, "
+    print(f"{len(chosen)} pairs chosen, slots filled {mask.mean():.2f}, "
           f"{len(geo.vertex_index)} vertices read; {t_pairs:.0f} s", flush=True)
 
     f_dc = features_of(geo, space, z=rows.z)

@@ -8,7 +8,13 @@ import pytest
 import torch
 
 from neuralcol.nn.detector import CollisionDetector, load_detector, save_detector
-from neuralcol.nn.part_geometry import DetectorOnCodes, PartGeometry, choose_part_pairs, geometry_of_codes
+from neuralcol.nn.part_geometry import (
+    DetectorOnCodes,
+    PartGeometry,
+    choose_geometry,
+    choose_part_pairs,
+    geometry_of_codes,
+)
 
 # a strip of 8 vertices (two rows of 4) and 6 triangles; 2 sub-domains (left and right halves)
 REST = np.array([[x, y, 0.0] for y in (0.0, 1.0) for x in range(4)])
@@ -147,3 +153,18 @@ def test_training_reads_the_pair_features_stored_with_dc(tmp_path):
         module, train_dataloaders=dm.train_dataloader(), val_dataloaders=dm.val_dataloader())
     assert not torch.equal(before["slot_w"], det.state_dict()["slot_w"]), "the geometry embedding was trained"
     dm.close()
+
+
+def test_choose_geometry_reads_the_space_and_the_examples():
+    space = LinearSpace(2)
+    space.faces = torch.as_tensor(FACES)
+    space.partition = torch.as_tensor(PARTITION)
+    # fold the strip: its right end (x = 3) comes back over its left end (x = 0)
+    folded = REST.copy()
+    folded[[3, 7], 0] = 0.1
+    folded[[3, 7], 2] = 0.05
+    geo = choose_geometry(space, folded[None], radius=0.1, min_hops=2)
+    assert sorted(map(tuple, geo.contact.pairs.tolist())) == [(0, 3), (4, 7)]
+    assert geo.mask.any(1).tolist() == [True, True] and geo.contact.radius == pytest.approx(0.1 * np.sqrt(10))
+    with pytest.raises(ValueError, match="no vertex pair at least 2 edges apart"):
+        choose_geometry(space, REST[None], radius=0.1)

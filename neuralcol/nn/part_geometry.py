@@ -98,6 +98,37 @@ def choose_part_pairs(pairs: np.ndarray, scores: np.ndarray, partition: np.ndarr
     return chosen.reshape(-1, 2), slots, mask
 
 
+def choose_geometry(space, meshes: np.ndarray, collides: np.ndarray | None = None, radius: float = 0.02,
+                    min_hops: int = 2, fold_ratio: float = 0.5, colliding_weight: float = 3.0, per_part: int = 32,
+                    clip: float = 3.0) -> PartGeometry:
+    """The :class:`PartGeometry` of a latent space, its pairs chosen on example meshes.
+
+    Args:
+        space: the latent space (its rest mesh, faces and sub-domains ``partition``).
+        meshes: (N, V, 3) examples (decoded codes, realistic training meshes).
+        collides: (N,) their exact labels, or None (unlabeled examples each count once).
+        radius: closeness radius and feature unit, a fraction of the rest mesh's bounding-box diagonal.
+        min_hops, fold_ratio, colliding_weight: see :func:`close_pair_scores`. per_part: M slots per sub-domain.
+        clip: features clipped to ``[-clip, clip]`` radii.
+
+    Raises:
+        ValueError: no pair comes close in the examples (the message says what to raise).
+    """
+    rest = space.rest_vertices.detach().cpu().numpy().astype(np.float64)
+    faces = space.faces.detach().cpu().numpy()
+    diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
+    labels = np.zeros(len(meshes), bool) if collides is None else np.asarray(collides, bool)
+    weight = float(colliding_weight) if collides is not None else 1.0
+    pairs, scores = close_pair_scores(meshes, labels, rest, faces, radius * diag, min_hops, fold_ratio, weight)
+    if len(pairs) == 0:
+        raise ValueError(f"no vertex pair at least {min_hops} edges apart comes within radius={radius} of the "
+                         f"diagonal and {fold_ratio} of its rest distance in the {len(meshes)} examples; raise the "
+                         "radius or give more examples")
+    partition = space.partition.detach().cpu().numpy()
+    chosen, slots, mask = choose_part_pairs(pairs, scores, partition, int(partition.max()) + 1, per_part)
+    return PartGeometry(chosen, slots, mask, faces, radius * diag, clip)
+
+
 class PartGeometry(nn.Module):
     """(B, V', 3) vertices -> (B, P, 3) pair features, and their per-sub-domain layout (B, K, M, 3).
 
