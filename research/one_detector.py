@@ -27,14 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-
-def _mlp(sizes, act=nn.CELU):
-    layers = []
-    for i in range(len(sizes) - 1):
-        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
-        if i < len(sizes) - 2:
-            layers.append(act())
-    return nn.Sequential(*layers)
+from neuralcol.nn.detector import _mlp
 
 
 class CodeMeshNet(nn.Module):
@@ -52,7 +45,7 @@ class CodeMeshNet(nn.Module):
         if self.geometry:
             self.register_buffer("mask", mask)
             if pool == "deepsets":
-                self.phi = _mlp([4, g_hidden, g_hidden])
+                self.phi = _mlp([4, g_hidden, g_hidden], nn.CELU)
                 gdim = 2 * g_hidden
             else:  # "linear": each sub-domain's own affine map of its slots' features, then CELU
                 m = mask.shape[1]
@@ -61,9 +54,9 @@ class CodeMeshNet(nn.Module):
                 gdim = g_hidden
         d = lo.shape[0]
         part = d // k + gdim
-        self.cse = nn.Sequential(_mlp([d + k * gdim, hidden, state]), nn.Tanh())
-        self.cp = _mlp([state + part, hidden, hidden, 1])
-        self.mlp_c = _mlp([k, hidden, 1])
+        self.cse = nn.Sequential(_mlp([d + k * gdim, hidden, state], nn.CELU), nn.Tanh())
+        self.cp = _mlp([state + part, hidden, hidden, 1], nn.CELU)
+        self.mlp_c = _mlp([k, hidden, 1], nn.CELU)
 
     def pooled(self, g: torch.Tensor) -> torch.Tensor:
         """(B, K, M, 3) -> (B, K, 2 H): max and mean of phi over each sub-domain's filled slots."""

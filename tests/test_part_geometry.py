@@ -66,3 +66,15 @@ def test_part_geometry_lays_out_the_contact_features_per_subdomain():
     torch.testing.assert_close(g[:, 0, :2], f[:, [0, 1]])
     assert torch.all(g[:, :, 2] == 0) and mask[:, 2].tolist() == [False, False]
     assert set(geo.vertex_index.tolist()) == set(range(6))
+
+
+def test_scores_do_not_depend_on_when_they_are_folded():
+    rest = stacked(10.0)
+    meshes = np.stack([stacked(h) for h in (0.05, 0.1, 0.2, 0.3, 5.0)])
+    labels = np.array([True, True, False, False, False])
+    args = (meshes, labels, rest, FACES, 0.5, 1, 0.5, 3.0)
+    once = close_pair_scores(*args)
+    often = close_pair_scores(*args, fold_at=1)
+    np.testing.assert_array_equal(once[0], often[0])
+    np.testing.assert_array_equal(once[1], often[1])
+    np.testing.assert_array_equal(once[1], [8.0, 8.0, 8.0])

@@ -29,13 +29,15 @@ import torch
 from scipy.spatial import cKDTree
 from torch import nn
 
-from neuralcol.geometry.contact_pairs import ContactFeatures, hop_neighbourhood
+from neuralcol.geometry.contact_pairs import ContactFeatures, _fold, hop_neighbourhood
 
 
 def close_pair_scores(meshes: np.ndarray, collides: np.ndarray, rest: np.ndarray, faces: np.ndarray,
-                      radius: float, min_hops: int, fold_ratio: float,
-                      colliding_weight: float) -> tuple[np.ndarray, np.ndarray]:
-    """How often each vertex pair comes close in ``meshes`` (see the module doc for *close*).
+                      radius: float, min_hops: int, fold_ratio: float, colliding_weight: float,
+                      fold_at: int = 20_000_000) -> tuple[np.ndarray, np.ndarray]:
+    """How often each vertex pair comes close in ``meshes`` (see the module doc for *close*). The scores are
+    folded into running sums whenever ``fold_at`` pairs are buffered, as in
+    :func:`~neuralcol.geometry.contact_pairs.select_contact_pairs` (a body has ~10^6 close pairs per mesh).
 
     Returns:
         (pairs (Q, 2) int64 with i < j, scores (Q,)): every pair close in at least one mesh, by key order.
@@ -46,7 +48,8 @@ def close_pair_scores(meshes: np.ndarray, collides: np.ndarray, rest: np.ndarray
     if meshes.ndim != 3 or meshes.shape[1:] != rest.shape:
         raise ValueError(f"meshes have shape {meshes.shape}, expected (N, {n_vert}, 3)")
     near = hop_neighbourhood(faces, n_vert, min_hops)
-    keys, weights = [], []
+    uniq, score = np.zeros(0, np.int64), np.zeros(0)
+    keys, weights, n_buffered = [], [], 0
     for v, c in zip(meshes, np.asarray(collides, bool)):
         pr = cKDTree(v).query_pairs(float(radius), output_type="ndarray")
         if len(pr) == 0:
@@ -58,10 +61,11 @@ def close_pair_scores(meshes: np.ndarray, collides: np.ndarray, rest: np.ndarray
         pr = pr[d < fold_ratio * d_rest]
         keys.append(pr[:, 0] * n_vert + pr[:, 1])
         weights.append(np.full(len(pr), float(colliding_weight) if c else 1.0))
-    if not keys:
-        return np.zeros((0, 2), np.int64), np.zeros(0)
-    uniq, inverse = np.unique(np.concatenate(keys), return_inverse=True)
-    score = np.bincount(inverse, weights=np.concatenate(weights), minlength=len(uniq))
+        n_buffered += len(pr)
+        if n_buffered >= fold_at:
+            uniq, score = _fold(uniq, score, keys, weights)
+            keys, weights, n_buffered = [], [], 0
+    uniq, score = _fold(uniq, score, keys, weights)
     return np.stack([uniq // n_vert, uniq % n_vert], 1).astype(np.int64), score
 
 
