@@ -82,9 +82,9 @@ def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.nda
         weights.append(np.full(len(pr), float(colliding_weight) if c else 1.0))
         n_buffered += len(pr)
         if n_buffered >= fold_at:
-            uniq, score = _fold(uniq, score, keys, weights)
+            uniq, score = fold_pair_scores(uniq, score, keys, weights)
             keys, weights, n_buffered = [], [], 0
-    uniq, score = _fold(uniq, score, keys, weights)
+    uniq, score = fold_pair_scores(uniq, score, keys, weights)
     if len(uniq) == 0:
         return np.zeros((0, 2), np.int64)
     order = np.lexsort((uniq, -score))  # by score, ties by pair
@@ -107,7 +107,7 @@ def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.nda
     return np.stack([uniq[order] // n_vert, uniq[order] % n_vert], 1).astype(np.int64).reshape(-1, 2)
 
 
-def _fold(uniq: np.ndarray, score: np.ndarray, keys: list, weights: list) -> tuple[np.ndarray, np.ndarray]:
+def fold_pair_scores(uniq: np.ndarray, score: np.ndarray, keys: list, weights: list) -> tuple[np.ndarray, np.ndarray]:
     """Merge buffered pair keys and weights into the sorted distinct keys ``uniq`` and their summed ``score``."""
     if not keys:
         return uniq, score

@@ -29,7 +29,7 @@ import torch
 from scipy.spatial import cKDTree
 from torch import nn
 
-from neuralcol.geometry.contact_pairs import ContactFeatures, _fold, hop_neighbourhood
+from neuralcol.geometry.contact_pairs import ContactFeatures, fold_pair_scores, hop_neighbourhood
 
 
 def close_pair_scores(meshes: np.ndarray, collides: np.ndarray, rest: np.ndarray, faces: np.ndarray,
@@ -63,9 +63,9 @@ def close_pair_scores(meshes: np.ndarray, collides: np.ndarray, rest: np.ndarray
         weights.append(np.full(len(pr), float(colliding_weight) if c else 1.0))
         n_buffered += len(pr)
         if n_buffered >= fold_at:
-            uniq, score = _fold(uniq, score, keys, weights)
+            uniq, score = fold_pair_scores(uniq, score, keys, weights)
             keys, weights, n_buffered = [], [], 0
-    uniq, score = _fold(uniq, score, keys, weights)
+    uniq, score = fold_pair_scores(uniq, score, keys, weights)
     return np.stack([uniq // n_vert, uniq % n_vert], 1).astype(np.int64), score
 
 
