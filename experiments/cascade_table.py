@@ -55,7 +55,7 @@ def redraw_chart(run_dir: Path, png: Path, targets, floor: str, title: str | Non
                  confidence: float | None = None) -> Path:
     """The run's speed/accuracy points with the cascade of ``floor`` (see the module docstring)."""
     from experiments.reporting.speed_accuracy import plot_speed_accuracy
-    from neuralcol.stages.speed import cascade_points
+    from neuralcol.stages.speed import CODE_AND_MESH, cascade_points
 
     sa = json.loads(RunDir(run_dir).metrics.read_text()).get("speed_accuracy")
     if not sa:
@@ -66,7 +66,8 @@ def redraw_chart(run_dir: Path, png: Path, targets, floor: str, title: str | Non
                             "test": {k: r[k] for k in ("fnr", "accuracy", "exact_share", "n")}} for r in rows]}
     exact = sps.get(("exact", "verdict")) or sps.get(("exact", "label + PD"))  # the cascade's exact path: the verdict
     points = [p for p in sa["points"] if p["method"] != "cascade"]
-    points += cascade_points(cascade, exact, sps.get(("latent detector", "float32 eager")))
+    detector = sps.get(("latent detector", "float32 eager")) or sps.get((CODE_AND_MESH, "float32 eager"))
+    points += cascade_points(cascade, exact, detector)
     png.parent.mkdir(parents=True, exist_ok=True)
     plot_speed_accuracy(points, png, title or f"{run_dir}: speed against accuracy (cascade: {floor} floor)")
     return png

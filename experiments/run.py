@@ -31,6 +31,7 @@ from neuralcol.handler.resolve import alm_settings
 from neuralcol.metrics.plots import partition_colors, render_mesh_png
 from neuralcol.metrics.tensorboard import stage_logger
 from neuralcol.nn.detector import load_detector
+from neuralcol.nn.part_geometry import DetectorOnCodes
 from neuralcol.pipeline import RunContext
 from neuralcol.rundir import RunDir
 from neuralcol.samples.cache import shared_test_set
@@ -39,6 +40,7 @@ from neuralcol.stages.box_check import check_box, probe_share
 from neuralcol.stages.cascade import calibrate, cascade_stage, cascade_table, log_cascade
 from neuralcol.stages.data import acap_round_trip, dataset_labels
 from neuralcol.stages.detector import inference_us, train_detector
+from neuralcol.stages.geometry import detector_inputs, realistic_rows
 from neuralcol.stages.handler import evaluate_handler, export_handling
 from neuralcol.stages.mesh_detector import mesh_detector_stage
 from neuralcol.stages.model_size import search_model_size, validate_model_size
@@ -108,29 +110,42 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
             # per round the detector alone (paper Fig. 5); the verified variant is for the final detector
             return evaluate_handler(net, oracle, z_user, pd_user, settings, int(cfg.handler.batch_size))[0]
 
+        # issue 41: the detector over code and mesh trains on realistic training meshes too (rows of D_c)
+        samples_dir = ctx.samples_dir(sample_labeler)
+        one_detector = detector_inputs(cfg.detector) == "code_and_mesh"
+        real_rows = None
+        if one_detector and cfg.detector.geometry.realistic_rows:
+            real_rows = realistic_rows(space, ds.vertices.numpy(), feats.features.numpy(), feats.acap,
+                                       ae_report["train_index"], pool, cfg.mesh_detector.train_set, samples_dir,
+                                       float(sample_labeler.eps))
         det = train_detector(space, oracle, cfg.detector, cfg.method, ae_report["cache_key"], int(cfg.seed),
                              cfg.paths.cache_dir, run_dir, logger,
-                             round_eval=handling if cfg.handler.eval_every_round and len(z_user) else None)
+                             round_eval=handling if cfg.handler.eval_every_round and len(z_user) else None,
+                             real_rows=real_rows)
         t_det = time.perf_counter() - t0
+
+        def final_detector():  # the final detector as a function of codes (decoding what its features read)
+            return DetectorOnCodes(load_detector(rd.detector)[0], space)
+
         # the certified cascade (issue 29): a band of doubt per target FNR, chosen on its calibration set
         bands, calib_collides = None, None
         if cfg.detector.get("cascade") is not None and cfg.detector.cascade.enabled:
-            net, _ = load_detector(rd.detector)
+            net = final_detector()
             bands, calib_collides = calibrate(net, oracle, cfg.detector, ae_report["cache_key"], cfg.paths.cache_dir,
                                               rd.cascade)
         # the collision handler with the final detector (handler.n_inputs = 0 skips it); verified exactly, and
         # through the cascade of each band
         handling_metrics, arrays = None, None
         if len(z_user):
-            net, _ = load_detector(rd.detector)
+            net = final_detector()
             handling_metrics, arrays = evaluate_handler(net, oracle, z_user, pd_user, settings,
                                                         int(cfg.handler.batch_size), list(cfg.handler.verify_margins),
                                                         certify=bands if cfg.detector.cascade.get("handler")
                                                         else None)
-        # the detector that reads the mesh (issue 27): decoded D_c + realistic training meshes
-        samples_dir = ctx.samples_dir(sample_labeler)
+        # the detector that reads the mesh (issue 27): decoded D_c + realistic training meshes (not beside the
+        # detector over code and mesh, which reads the mesh itself)
         mesh_net, mesh_report = None, None
-        if cfg.mesh_detector.enabled:
+        if cfg.mesh_detector.enabled and not one_detector:
             mesh_net, mesh_report = mesh_detector_stage(
                 space, ds.vertices.numpy(), feats.features.numpy(), feats.acap, ae_report["train_index"], pool,
                 cfg.mesh_detector, samples_dir, float(sample_labeler.eps), rd.dc, int(cfg.seed),
@@ -142,7 +157,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
             meshes, pd_real, real_cached = realistic_set(
                 ds.vertices.numpy(), feats.features.numpy(), feats.acap, ae_report["val_index"], pool,
                 cfg.realistic, samples_dir, float(sample_labeler.eps))
-            net, _ = load_detector(rd.detector)
+            net = final_detector()
             realistic_metrics, real_arrays = evaluate_realistic(
                 space, net, meshes, pd_real, pool, float(sample_labeler.eps), cfg.realistic, settings,
                 list(cfg.handler.verify_margins), int(cfg.handler.batch_size), mesh_net=mesh_net,
@@ -153,7 +168,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         # the cascade's bands on the U(Z) test set and the realistic set, its throughput against the exact labeler
         cascade_metrics = None
         if bands is not None:
-            net, _ = load_detector(rd.detector)
+            net = final_detector()
             detector_us = inference_us(net, test.z, batch_sizes=(4096,))["batch_4096"]
             cascade_metrics = cascade_stage(net, space, sample_labeler, test, bands, calib_collides, cfg.detector,
                                             detector_us, real_arrays if realistic_metrics is not None else None)
@@ -194,8 +209,8 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
                                                             "default", "rule")}
     sa_cfg = cfg.get("speed_accuracy")
     if sa_cfg is not None and sa_cfg.enabled:  # issue 29: last, as it reads the other stages' metrics (cascade)
-        sa = measure_speed_accuracy(space, load_detector(rd.detector)[0], test, sa_cfg, cfg.labeling, metrics,
-                                    mesh_net, run_dir)
+        sa = measure_speed_accuracy(space, DetectorOnCodes(load_detector(rd.detector)[0], space), test, sa_cfg,
+                                    cfg.labeling, metrics, mesh_net, run_dir)
         metrics["speed_accuracy"] = sa
         plot_speed_accuracy(sa["points"], rd.speed_accuracy_png, f"{cfg.dataset.name}, {cfg.method.name}, seed "
                             f"{cfg.seed}: speed against accuracy (torch threads: {sa['threads']})")

@@ -34,6 +34,7 @@ from omegaconf.errors import OmegaConfBaseException
 from neuralcol.errors import UserInputError
 from neuralcol.nn.detector import CollisionDetector, smooth_max
 from neuralcol.nn.latent_space import LatentSpace
+from neuralcol.nn.part_geometry import DetectorOnCodes
 from neuralcol.rundir import CacheDir, RunDir
 
 OBJECTIVES = ("latent", "cartesian")
@@ -319,6 +320,8 @@ class TrainedRun:
         self.device = torch.device(device)
         self.space = space.to(self.device).eval()
         self.detector = detector.to(self.device).eval()
+        # the detector as a function of codes (one over code and mesh decodes the vertices its features read)
+        self.on_codes = DetectorOnCodes(self.detector, self.space)
         self.mesh_detector = None if mesh_detector is None else mesh_detector.to(self.device).eval()
         self.pd_unit, self.temperature = float(pd_unit), float(temperature)
         # the label pool's settings that differ from the run's labeling.pool
@@ -433,11 +436,15 @@ class TrainedRun:
                                      "use inputs='latent' with certify")
             band = self.band(certify)
         z = self.encode(x) if is_mesh else self._codes(x)
-        net = self.detector if fast is None else self._fast_detector(fast)
+        # issue 41: a detector over code and mesh judges a mesh by its own geometry, not by its round trip's
+        v = self._vertices(x).to(self.device) if is_mesh and self.detector.geometry is not None else None
+        net = self.on_codes if fast is None or v is not None else self._fast_detector(fast)
         parts = []
         with torch.no_grad():
             for start in range(0, len(z), batch_size):
-                out = net(z[start:start + batch_size])
+                zb = z[start:start + batch_size]
+                out = net(zb) if v is None else \
+                    self.detector(zb, self.detector.geometry_of_meshes(v[start:start + len(zb)]))
                 parts.append(Detection(out.prob, out.logit, smooth_max(out.s, self.temperature) * self.pd_unit,
                                        out.s * self.pd_unit))
         if not parts:
@@ -547,7 +554,7 @@ class TrainedRun:
         rows, _, _ = calibration_set(ctx.oracle(self.label_pool()), det_cfg, self.metrics["autoencoder"]["cache_key"],
                                      self.cfg.paths.cache_dir)
         path = RunDir(self.run_dir).cascade
-        save_calibration(path, detector_logits(self.detector, rows.z), rows.collides, int(seed))
+        save_calibration(path, detector_logits(self.on_codes, rows.z), rows.collides, int(seed))
         self._calibration = None
         return path
 
@@ -558,7 +565,7 @@ class TrainedRun:
         if form not in FORMS:
             raise UserInputError(f"fast={form!r}; use None or one of {sorted(FORMS)}")
         if form not in self._fast:
-            self._fast[form] = FastDetector.from_form(self.detector, form)
+            self._fast[form] = FastDetector.from_form(self.on_codes, form)
         return self._fast[form]
 
     def repair_settings(self, repair: bool | None = None):
@@ -726,7 +733,7 @@ class TrainedRun:
             rep = self.repair_settings(repair) if verify else None
             if rep is not None:
                 self.label_pool()  # the repair asks the run's labeler in this process
-            res = resolve_meshes(self.detector, self.space, v_user, self._pd, settings, margins, batch,
+            res = resolve_meshes(self.on_codes, self.space, v_user, self._pd, settings, margins, batch,
                                  objective=target, anchor=anchor, z_user=z_user,
                                  mesh_net=self.mesh_detector if constraint == "mesh" else None,
                                  repair=rep, labeler=self._exact if rep is not None else None, certify=band)
@@ -742,7 +749,7 @@ class TrainedRun:
 
         def handle(rows: np.ndarray, margin: float):
             idx_map = torch.as_tensor(rows, device=self.device)
-            return handle_codes(self.detector, z_user[torch.as_tensor(rows)], self.space.box_lo, self.space.box_hi,
+            return handle_codes(self.on_codes, z_user[torch.as_tensor(rows)], self.space.box_lo, self.space.box_hi,
                                 replace(settings, margin=margin), batch_size=batch,
                                 objective=lambda z, idx: target(z, idx_map[idx]))
 
@@ -750,7 +757,7 @@ class TrainedRun:
             return self._pd(self.decode(z))
 
         decide = label if band is None else \
-            CertifiedLabel(band, lambda z: detector_logits(self.detector, z), label)
+            CertifiedLabel(band, lambda z: detector_logits(self.on_codes, z), label)
         res = handle(np.arange(len(z_user)), settings.margin)
         pd_after = np.full(len(z_user), np.nan)
         pd_after[res.finite.numpy()] = decide(res.z[res.finite])

@@ -11,6 +11,7 @@ Run directory (one run)::
     detector.pt                 the final latent detector         mesh_detector.pt   the detector that reads meshes
     detector_rounds.json        round records (rewritten each round; ``finished`` when done)
     dc.h5                       D_c, the labeled training samples  checkpoints/detector.ckpt  resume state
+    geometry.npz                the contact pairs of a detector over code and mesh (detector.inputs=code_and_mesh)
     test_predictions.npz        the detector on the U(Z) test set  realistic_predictions.npz  on the realistic set
     cascade.npz                 the detector's logits on the cascade's calibration set and their exact labels
     handling/  examples/  round_examples/  subdomains.png  speed_accuracy.png  tensorboard/<stage>/
@@ -49,6 +50,7 @@ class RunDir:
     mesh_detector = _File("mesh_detector.pt")
     detector_rounds = _File("detector_rounds.json")
     dc = _File("dc.h5")
+    geometry = _File("geometry.npz")  # the contact pairs a detector over code and mesh reads (issue 41)
     checkpoint = _File("checkpoints", "detector.ckpt")
     test_predictions = _File("test_predictions.npz")
     realistic_predictions = _File("realistic_predictions.npz")

@@ -146,7 +146,14 @@ def test_training_reads_the_pair_features_stored_with_dc(tmp_path):
     batch = next(iter(dm.train_dataloader()))
     assert len(batch) == 5 and batch[4].shape == (8, det.geometry.n_pairs, 3)
     module = DetectorLitModule(det, optimizer=torch.optim.Adam, lr=1e-2, w_pd=5, w_pdsum=0.2, w_r=2, w_ce=2,
-                               w_b=0.5, margin=0.01, temperature=0.1)
+                               w_b=0.5, margin=0.01, temperature=0.1, space=space)
+    with pytest.raises(ValueError, match="needs the latent space"):
+        DetectorLitModule(det, optimizer=torch.optim.Adam, lr=1e-2, w_pd=5, w_pdsum=0.2, w_r=2, w_ce=2, w_b=0.5,
+                          margin=0.01, temperature=0.1)
+    # on codes alone (the test set, the acquisition) it decodes what the features read: the same logits
+    zt = torch.as_tensor(z[:5])
+    torch.testing.assert_close(module.predict_logits(zt),
+                               det(zt, torch.as_tensor(pairs[:5])).logit.detach(), rtol=1e-4, atol=1e-5)
     before = {k: v.clone() for k, v in det.state_dict().items()}
     L.Trainer(max_epochs=1, logger=False, enable_checkpointing=False, enable_progress_bar=False,
               enable_model_summary=False, num_sanity_val_steps=0, accelerator="cpu").fit(
@@ -168,3 +175,74 @@ def test_choose_geometry_reads_the_space_and_the_examples():
     assert geo.mask.any(1).tolist() == [True, True] and geo.contact.radius == pytest.approx(0.1 * np.sqrt(10))
     with pytest.raises(ValueError, match="no vertex pair at least 2 edges apart"):
         choose_geometry(space, REST[None], radius=0.1)
+
+
+def _strip_space(dim: int = 2, seed: int = 7) -> LinearSpace:
+    space = LinearSpace(dim, seed=seed)
+    space.faces = torch.as_tensor(FACES)
+    space.partition = torch.as_tensor(PARTITION)
+    space.dim, space.n_parts = dim, 2
+    space.box_lo, space.box_hi = -torch.ones(dim), torch.ones(dim)
+    return space
+
+
+def test_run_geometry_is_saved_reloaded_and_featurizes_codes_and_meshes(tmp_path):
+    """The run stage's pair choice (bootstrap codes + realistic meshes) reloads as the same geometry (a resumed run
+    builds the same detector); codes and whole meshes give the same features as the module's own functions."""
+    from neuralcol.nn.part_geometry import code_mesh_logits, mesh_pair_features
+    from neuralcol.stages.geometry import RealisticRows, choose_run_geometry, codes_featurizer, load_run_geometry
+
+    space = _strip_space()
+    folded = REST.copy()
+    folded[[3, 7], 0] = 0.1
+    folded[[3, 7], 2] = 0.05
+    real = RealisticRows(np.zeros((1, 2), np.float32), np.array([0.1]), np.array([[0.1, 0.1]]), np.array([True]),
+                         np.zeros(1, np.int8), folded[None])
+    cfg = {"radius": 0.1, "min_hops": 2, "fold_ratio": 0.5, "colliding_weight": 3.0, "per_part": 4, "clip": 3.0,
+           "select_codes": 3}
+    z = np.zeros((10, 2), np.float32)  # the rest mesh: no pair comes close; the realistic fold decides
+    geo = choose_run_geometry(space, z, np.zeros(10, bool), real, cfg, tmp_path / "geometry.npz")
+    assert sorted(map(tuple, geo.contact.pairs.tolist())) == [(0, 3), (4, 7)]
+    with np.load(tmp_path / "geometry.npz") as f:
+        assert int(f["n_examples"]) == 3 + 1  # codes 0, 4, 8 (at most select_codes = 3 of the 10) + the mesh
+    again = load_run_geometry(space, tmp_path / "geometry.npz")
+    for name, buf in geo.state_dict().items():
+        torch.testing.assert_close(again.state_dict()[name], buf)
+    with pytest.raises(ValueError, match="no vertex pair"):  # without the realistic fold nothing comes close
+        choose_run_geometry(space, z, np.zeros(10, bool), None, cfg, tmp_path / "none.npz")
+    rng = np.random.default_rng(0)
+    zz = rng.uniform(-1, 1, (7, 2)).astype(np.float32)
+    feats = codes_featurizer(geo, space, block=3)(zz)
+    torch.testing.assert_close(torch.as_tensor(feats), geometry_of_codes(geo, space, torch.as_tensor(zz)).float())
+    meshes = space.decode(torch.as_tensor(zz, dtype=torch.float64)).numpy()
+    torch.testing.assert_close(torch.as_tensor(mesh_pair_features(geo, meshes, block=2)), torch.as_tensor(feats),
+                               rtol=1e-5, atol=1e-5)
+    det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=geo)
+    torch.testing.assert_close(torch.as_tensor(code_mesh_logits(det, zz, meshes, block=4)),
+                               DetectorOnCodes(det, space)(torch.as_tensor(zz)).logit.detach(), rtol=1e-4, atol=1e-5)
+
+
+def test_fast_detector_reads_the_decoded_geometry():
+    """FastDetector around DetectorOnCodes: the same logits as the eager detector on codes (float32, eager)."""
+    from neuralcol.nn.fast_inference import FastDetector
+
+    torch.manual_seed(3)
+    space = _strip_space()
+    det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry()).eval()
+    z = torch.rand(40, 2) * 2 - 1
+    fast = FastDetector(DetectorOnCodes(det, space), "float32", compile=False, block=16)
+    with torch.no_grad():
+        torch.testing.assert_close(fast(z).logit, DetectorOnCodes(det, space)(z).logit, rtol=1e-5, atol=1e-6)
+
+
+def test_a_copy_of_the_detector_on_codes_shares_the_space():
+    """Deep copies (the projector's float64 copy, the speed stage's) copy the detector, never the latent space."""
+    import copy
+
+    space = _strip_space()
+    on_codes = DetectorOnCodes(CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry()), space)
+    twin = copy.deepcopy(on_codes).double()
+    assert twin.space is space and twin.detector is not on_codes.detector
+    assert next(twin.parameters()).dtype == torch.float64 and next(on_codes.parameters()).dtype == torch.float32
+    z = torch.rand(3, 2, dtype=torch.float64)
+    torch.testing.assert_close(twin(z).logit.float(), on_codes(z.float()).logit, rtol=1e-4, atol=1e-5)

@@ -212,7 +212,7 @@ class RoundCallback(L.Callback):
                   "n_projected_total": int((rows.origin == Origin.PROJECTED).sum()),
                   "subset_counts": np.bincount(rows.subset, minlength=3).tolist()}
         if self.extra_eval is not None:
-            record["handling"] = self.extra_eval(pl_module.net)
+            record["handling"] = self.extra_eval(pl_module.on_codes)
         self.rounds.append(record)
         if self.on_round is not None:  # recorded before the (long) acquisition, so a crash there keeps it
             self.on_round(self.rounds, False)
@@ -224,7 +224,7 @@ class RoundCallback(L.Callback):
             self.stopped_by = "elbow" if self.round < self.max_rounds else "max_rounds"
             trainer.should_stop = True
         else:
-            new = self.acquire(self.round + 1, pl_module.net, self.dm.store, self.n_aug)
+            new = self.acquire(self.round + 1, pl_module.on_codes, self.dm.store, self.n_aug)
             self.dm.append(new.z, new.pd, new.pd_sub, new.collides, new.subset, self.round + 1, new.origin)
             self.seconds["label"] += new.label_seconds
             self.seconds["project"] += new.project_seconds

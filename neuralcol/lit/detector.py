@@ -8,6 +8,7 @@ import torch
 
 from neuralcol.lit.base import SplitStepModule
 from neuralcol.nn.detector import CollisionDetector, detector_losses
+from neuralcol.nn.part_geometry import DetectorOnCodes
 
 
 class DetectorLitModule(SplitStepModule):
@@ -23,23 +24,34 @@ class DetectorLitModule(SplitStepModule):
         temperature: smooth-max temperature of the aggregated depth (PD target units).
         ce_on_boundary: cross-entropy on the D_b rows too (see :func:`~neuralcol.nn.detector.detector_losses`).
         boundary_reduction: how L_b averages its D_b rows, "boundary" (paper) or "batch" (same function).
+        space: the latent space of the codes; needed by a detector that reads the mesh too (issue 41), whose
+            answers on codes alone (:attr:`on_codes`: the test set, the acquisition, the handler) decode the
+            vertices its pair features read. Training reads the features D_c stores.
     """
 
     def __init__(self, net: CollisionDetector, optimizer: Callable, lr: float, w_pd: float, w_pdsum: float,
                  w_r: float, w_ce: float,
                  w_b: float, margin: float, temperature: float, ce_on_boundary: bool = False,
-                 boundary_reduction: str = "boundary"):
+                 boundary_reduction: str = "boundary", space=None):
         super().__init__()
-        self.save_hyperparameters(ignore=["net", "optimizer"])
+        self.save_hyperparameters(ignore=["net", "optimizer", "space"])
         self.net = net
+        self._space = (space,)  # a tuple: not a submodule (the latent space is not trained here)
+        if net.geometry is not None and space is None:
+            raise ValueError("DetectorLitModule: a detector that reads the mesh needs the latent space (space=)")
         self.optimizer = optimizer
         self.lr = float(lr)
         self.loss_kwargs = dict(w_pd=w_pd, w_pdsum=w_pdsum, w_r=w_r, w_ce=w_ce, w_b=w_b, margin=margin,
                                 temperature=temperature, ce_on_boundary=bool(ce_on_boundary),
                                 boundary_reduction=str(boundary_reduction))
 
+    @property
+    def on_codes(self) -> torch.nn.Module:
+        """The detector as a function of codes alone (:class:`~neuralcol.nn.part_geometry.DetectorOnCodes`)."""
+        return DetectorOnCodes(self.net, self._space[0])
+
     def forward(self, z: torch.Tensor):
-        return self.net(z)
+        return self.on_codes(z)
 
     def step(self, batch, split: str) -> torch.Tensor:
         z, pd, pd_sub, subset, *geometry = batch  # geometry: the rows' pair features, for a detector reading them
@@ -80,13 +92,16 @@ class DetectorLitModule(SplitStepModule):
         was_training = self.net.training
         self.net.eval()
         dev = next(self.net.parameters()).device
-        out = torch.cat([self.net(c.to(dev)).logit.cpu() for c in z.split(batch)]) if len(z) else torch.zeros(0)
+        net = self.on_codes
+        out = torch.cat([net(c.to(dev)).logit.cpu() for c in z.split(batch)]) if len(z) else torch.zeros(0)
         self.net.train(was_training)
         return out
 
 
-def detector_module(net: CollisionDetector, det: dict, w_b: float, lr: float) -> DetectorLitModule:
-    """The LightningModule of ``det`` (``conf/detector``: its ``optimizer`` and ``loss``) around ``net``."""
+def detector_module(net: CollisionDetector, det: dict, w_b: float, lr: float, space=None) -> DetectorLitModule:
+    """The LightningModule of ``det`` (``conf/detector``: its ``optimizer`` and ``loss``) around ``net``
+    (``space``: the latent space, for a detector that reads the mesh too)."""
     from hydra.utils import instantiate
 
-    return DetectorLitModule(net, optimizer=instantiate(det["optimizer"]), lr=lr, w_b=float(w_b), **det["loss"])
+    return DetectorLitModule(net, optimizer=instantiate(det["optimizer"]), lr=lr, w_b=float(w_b), space=space,
+                             **det["loss"])

@@ -322,7 +322,8 @@ def net_widths(net_cfg: dict) -> dict:
 
 
 def detector_for_space(space, state_dim: int, hidden: int, width: float = 1.0, normalize_inputs: bool = True,
-                       decoder_features: bool = False) -> CollisionDetector:
+                       decoder_features: bool = False, geometry: nn.Module | None = None, geometry_hidden: int = 32,
+                       geometry_pool: str = "linear") -> CollisionDetector:
     """A detector for the codes of ``space`` (the ``_target_`` of ``detector.net``; docs/detector.md).
 
     Args:
@@ -330,19 +331,28 @@ def detector_for_space(space, state_dim: int, hidden: int, width: float = 1.0, n
         state_dim, hidden: widths of S_0 and of the hidden layers, times ``width`` (rounded, at least 1).
         normalize_inputs: map the box Z to [-1, 1] inside the network.
         decoder_features: also feed the level-1 decoder's first layer ``act(z0 w + b)``.
+        geometry, geometry_hidden, geometry_pool: the pair features each CP_i also reads (issue 41; None: codes
+            only), see :class:`CollisionDetector`.
     """
     l2 = (space.dim - space.n_parts) // space.n_parts
     box = (space.box_lo.detach().cpu(), space.box_hi.detach().cpu()) if normalize_inputs else (None, None)
     feats = decoder_code_features(space) if decoder_features else None
     widths = net_widths({"state_dim": state_dim, "hidden": hidden, "width": width})
-    return CollisionDetector(space.n_parts, l2, **widths, box_lo=box[0], box_hi=box[1], code_features=feats)
+    return CollisionDetector(space.n_parts, l2, **widths, box_lo=box[0], box_hi=box[1], code_features=feats,
+                             geometry=geometry, geometry_hidden=int(geometry_hidden), geometry_pool=str(geometry_pool))
 
 
-def build_detector(space, det: dict) -> CollisionDetector:
-    """The detector ``det["net"]`` configures (a ``_partial_`` ``_target_`` taking the space) for ``space``."""
+def build_detector(space, det: dict, geometry: nn.Module | None = None) -> CollisionDetector:
+    """The detector ``det["net"]`` configures (a ``_partial_`` ``_target_`` taking the space) for ``space``; with
+    ``geometry`` (a :class:`~neuralcol.nn.part_geometry.PartGeometry`) one that reads the mesh too, its embedding
+    as ``det["geometry"]`` sets (``hidden``, ``pool``)."""
     from hydra.utils import instantiate
 
-    return instantiate(det["net"])(space)
+    if geometry is None:
+        return instantiate(det["net"])(space)
+    g = det["geometry"]
+    return instantiate(det["net"])(space, geometry=geometry, geometry_hidden=int(g["hidden"]),
+                                   geometry_pool=str(g["pool"]))
 
 
 def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, pd_unit: float) -> None:

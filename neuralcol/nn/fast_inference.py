@@ -25,6 +25,7 @@ import copy
 import torch
 
 from neuralcol.nn.detector import CollisionDetector, DetectorOutput
+from neuralcol.nn.part_geometry import geometry_of_codes
 
 DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 MIN_PADDED_ROWS = 16  # the smallest compiled block
@@ -86,6 +87,11 @@ class FastDetector:
         self._recheck = None if self.recheck_band is None else FastDetector(net, "float32", compile=compile)
         self.rechecked_fraction = 0.0
         self.compiled = bool(compile)
+        # a detector that reads the mesh too (issue 41) comes as DetectorOnCodes: its pair features are computed
+        # from the decoded vertices in float32 (a bfloat16 decode would move them by ~0.2 % of the diagonal)
+        self._space = getattr(net, "space", None) if getattr(net, "detector", None) is not None else None
+        net = net.detector if self._space is not None else net
+        self._geometry = None if net.geometry is None else copy.deepcopy(net.geometry).eval()
         self.net = copy.deepcopy(net).eval().to(self.dtype)
         for p in self.net.parameters():
             p.requires_grad_(False)
@@ -119,6 +125,10 @@ class FastDetector:
         return cls(net, dtype, recheck_band=band, **kwargs)
 
     def _block_forward(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        if self._geometry is not None:
+            g = geometry_of_codes(self._geometry, self._space, z.float())
+            out = self.net._forward(z.to(self.dtype), g.to(self.dtype))
+            return out.prob.float(), out.logit.float(), out.s.float()
         out = self.net._forward(z.to(self.dtype))
         return out.prob.float(), out.logit.float(), out.s.float()
 

@@ -196,7 +196,35 @@ class DetectorOnCodes(nn.Module):
     def space(self):
         return self._space[0]
 
+    def __deepcopy__(self, memo):
+        """A copy of the detector over the same latent space (the space is read, never changed, and holds
+        factorizations that cannot be copied)."""
+        import copy
+
+        return DetectorOnCodes(copy.deepcopy(self.detector, memo), self.space)
+
     def forward(self, z_all: torch.Tensor):
         if self.detector.geometry is None:
             return self.detector(z_all)
         return self.detector(z_all, geometry_of_codes(self.detector.geometry, self.space, z_all))
+
+
+def mesh_pair_features(geometry: PartGeometry, vertices: np.ndarray, block: int = 1024) -> np.ndarray:
+    """Whole meshes (M, V, 3) -> their pair features (M, P, 3) float32, in blocks, no gradients."""
+    with torch.no_grad():
+        out = [geometry.pair_features(torch.as_tensor(np.asarray(vertices[i:i + block]), dtype=torch.float64)).float()
+               for i in range(0, len(vertices), block)]
+    return torch.cat(out).numpy() if out else np.zeros((0, geometry.n_pairs, 3), np.float32)
+
+
+def code_mesh_logits(detector, z: np.ndarray, vertices: np.ndarray, block: int = 1024) -> np.ndarray:
+    """A detector over code and mesh on meshes given whole: ``detector(z, pair features of vertices)`` (M,) logits,
+    ``z`` (M, D) their codes (encode(mesh)), in blocks, eval mode, no gradients."""
+    was = detector.training
+    detector.eval()
+    feats = mesh_pair_features(detector.geometry, vertices, block)
+    with torch.no_grad():
+        out = [detector(torch.as_tensor(np.asarray(z[i:i + block], np.float32)),
+                        torch.as_tensor(feats[i:i + block])).logit for i in range(0, len(z), block)]
+    detector.train(was)
+    return torch.cat(out).numpy() if out else np.zeros(0, np.float32)

@@ -80,11 +80,13 @@ class CollisionDataModule(L.LightningDataModule):
         use_boundary_set: keep D_b (``supv_bd``, ``active``) or fold it into D_p (``supv``).
         n_pairs: P, the contact pairs whose features each row keeps (0: none; a detector that reads codes only).
         seed: shuffling seed (the order of epoch e depends on ``(seed, e)`` only, so resumed runs replay it).
+        featurize: ``codes (B, D) -> pair features (B, P, 3)`` of the meshes they decode to, computed for rows
+            appended without features (the labeled samples of every round; issue 41), so training never decodes.
     """
 
     def __init__(self, path: str | os.PathLike, latent_dim: int, n_parts: int, batch_size: int, pd_unit: float,
                  pd_clip: float, use_boundary_set: bool = True, seed: int = 0, val_batch_size: int = 8192,
-                 pd_floor: float | None = None, n_pairs: int = 0):
+                 pd_floor: float | None = None, n_pairs: int = 0, featurize=None):
         super().__init__()
         if batch_size < 1:
             raise ValueError(f"batch_size={batch_size} must be >= 1")
@@ -96,6 +98,7 @@ class CollisionDataModule(L.LightningDataModule):
         self.pd_floor = None if pd_floor is None else float(pd_floor)
         self.use_boundary_set = bool(use_boundary_set)
         self.seed = int(seed)
+        self.featurize = featurize
         self._train: tuple[torch.Tensor, ...] | None = None
         self._val: tuple[torch.Tensor, ...] | None = None
 
@@ -104,7 +107,9 @@ class CollisionDataModule(L.LightningDataModule):
 
     def append(self, z, pd, pd_sub, collides, subset, round_: int, origin, geometry=None) -> np.ndarray:
         """Append labeled rows (with their pair features in a store that keeps them) to D_c (crash-safe) and
-        reload the tensors; returns the new row ids."""
+        reload the tensors; returns the new row ids. Rows without features get ``featurize``'s of their codes."""
+        if geometry is None and self.featurize is not None:
+            geometry = self.featurize(np.asarray(z, np.float32))
         ids = self.store.append(z, pd, pd_sub, collides, subset, round_, origin, geometry)
         self.refresh()
         return ids

@@ -36,6 +36,7 @@ class Origin(IntEnum):
 
     UNIFORM = 0  # a uniform sample of the box Z
     PROJECTED = 1  # picked by the active acquisition (projected or most uncertain)
+    REALISTIC = 2  # a realistic training mesh (issue 41): code = encode(mesh), pair features of the mesh itself
 
 
 VAL_EVERY = 5  # row ids with id % 5 == 4 are validation rows (20 %)

@@ -21,15 +21,24 @@ import torch
 from hydra.utils import instantiate
 
 from neuralcol.active.rounds import Schedule
+from neuralcol.errors import UserInputError
 from neuralcol.lit.detector import DetectorLitModule, detector_module
 from neuralcol.metrics.detection import detection_metrics
 from neuralcol.metrics.tensorboard import log_round_examples
 from neuralcol.nn.detector import CollisionDetector, build_detector, net_widths, save_detector
+from neuralcol.nn.part_geometry import DetectorOnCodes, mesh_pair_features
 from neuralcol.rundir import RunDir
 from neuralcol.samples.cache import label_failures, samples_cache_dir, shared_test_set
 from neuralcol.samples.datamodule import CollisionDataModule
 from neuralcol.samples.oracle import LatentOracle
-from neuralcol.samples.store import CollisionRows
+from neuralcol.samples.store import CollisionRows, Origin
+from neuralcol.stages.geometry import (
+    RealisticRows,
+    choose_run_geometry,
+    codes_featurizer,
+    detector_inputs,
+    load_run_geometry,
+)
 from neuralcol.stages.validate import METHODS  # one list of method names
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.files import atomic_path, write_json_atomic
@@ -103,10 +112,13 @@ def inference_us(net: CollisionDetector, z: np.ndarray, batch_sizes=(1, 4096), r
 
 
 def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key: str, seed: int,
-                   cache_dir: str | Path, run_dir: str | Path, logger=None, round_eval=None) -> dict:
+                   cache_dir: str | Path, run_dir: str | Path, logger=None, round_eval=None,
+                   real_rows: RealisticRows | None = None) -> dict:
     """Run one method end to end (or resume it); returns ``{"rounds": [...], "detector": {...}}``.
 
-    ``round_eval`` (``net -> dict``), if given, runs after every round's test (e.g. the handler's evaluation).
+    ``round_eval`` (``net -> dict``, the detector on codes), if given, runs after every round's test (e.g. the
+    handler's evaluation). ``real_rows``: realistic training meshes (:func:`~neuralcol.stages.geometry.
+    realistic_rows`), rows of D_c in round 0 for a detector over code and mesh (``detector.inputs``, issue 41).
     """
     det, method = as_dict(det_cfg), as_dict(method_cfg)
     name = method["name"]
@@ -128,9 +140,6 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     test_failures = label_failures(shared / f"test_s{det['test_seed']}.h5")
     # 2. D_c, the acquisition and the rounds
     pd_unit = float(labeler.cap)
-    dm = CollisionDataModule(RunDir(run_dir).dc, space.dim, space.n_parts, int(det["batch_size"]), pd_unit,
-                             float(det["targets"]["pd_clip"]), use_boundary_set=bool(method["use_boundary_set"]),
-                             seed=seed, pd_floor=det["targets"].get("pd_floor"))
     pool_path = shared / f"uniform_s{seed}.h5"
     # the method's acquisition (method.acquisition: UniformAcquisition or ProjectedAcquisition, built by Hydra)
     acquire = instantiate(method["acquisition"])(pool_path, oracle, seed)
@@ -140,8 +149,27 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     if resuming:  # refused here, with the file's name, if it holds pickled objects; they are never run
         read_torch_file(ckpt, fix=f"delete it to restart the detector's training in {run_dir}, or start a new run "
                                   "directory")
-    if not resuming and len(dm) > 0:
-        dm.store.truncate(0)  # an earlier attempt died before its first checkpoint
+    elif rd.dc.is_file():
+        rd.dc.unlink()  # an earlier attempt died before its first checkpoint
+    # issue 41: a detector over code and mesh reads contact pairs chosen on the labeled bootstrap and the
+    # realistic training meshes (saved in the run directory, so a resumed run builds the same detector)
+    inputs = detector_inputs(det)
+    geometry, boot = None, None
+    if inputs == "code_and_mesh":
+        real_rows = real_rows if bool(det["geometry"]["realistic_rows"]) else None
+        if resuming:
+            if not rd.geometry.is_file():
+                raise UserInputError(f"{rd.geometry} is missing, so this run's detector cannot be rebuilt; delete "
+                                     f"{ckpt} to restart its training, or start a new run directory")
+            geometry = load_run_geometry(space, rd.geometry)
+        else:
+            boot = acquire.take_uniform(int(det["n_init"]))
+            geometry = choose_run_geometry(space, boot.z, boot.collides, real_rows, det["geometry"], rd.geometry)
+    dm = CollisionDataModule(rd.dc, space.dim, space.n_parts, int(det["batch_size"]), pd_unit,
+                             float(det["targets"]["pd_clip"]), use_boundary_set=bool(method["use_boundary_set"]),
+                             seed=seed, pd_floor=det["targets"].get("pd_floor"),
+                             n_pairs=0 if geometry is None else geometry.n_pairs,
+                             featurize=None if geometry is None else codes_featurizer(geometry, space))
     sched = {k: Schedule(**method[k]) for k in ("bootstrap", "update")}
 
     def on_round(rounds: list[dict], finished: bool, echo: bool = True) -> None:
@@ -173,15 +201,25 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
                              "label_seconds": test_label_s, "seconds": test_s,
                              "n_label_failures": test_failures},
                 "pd_unit": pd_unit, "n_parameters": int(sum(p.numel() for p in net.parameters())),
+                "inputs": inputs, "n_pairs": 0 if geometry is None else int(geometry.n_pairs),
+                "n_vertices_read": 0 if geometry is None else int(len(geometry.vertex_index)),
+                "n_realistic_rows": n_realistic,
                 "net": {**net_widths(det["net"]), "width": float(det["net"].get("width", 1.0))}}
 
+    n_realistic = 0  # realistic training meshes among D_c's rows (counted below)
     L.seed_everything(seed, workers=False, verbose=False)
-    net = build_detector(space, det)
-    module = detector_module(net, det, float(method["w_b"]), sched["bootstrap"].lr)
+    net = build_detector(space, det, geometry)
+    module = detector_module(net, det, float(method["w_b"]), sched["bootstrap"].lr, space=space)
     if not resuming:  # bootstrap: N_init uniform samples (round 0)
-        boot = acquire.take_uniform(int(det["n_init"]))
+        if boot is None:
+            boot = acquire.take_uniform(int(det["n_init"]))
         dm.append(boot.z, boot.pd, boot.pd_sub, boot.collides, boot.subset, 0, boot.origin)
         rounds_cb.add_label_seconds(boot.label_seconds)
+        if geometry is not None and real_rows is not None and len(real_rows.z):  # issue 41: real meshes as rows
+            dm.append(real_rows.z, real_rows.pd, real_rows.pd_sub, real_rows.collides, real_rows.subset, 0,
+                      Origin.REALISTIC, geometry=mesh_pair_features(geometry, real_rows.vertices))
+    if geometry is not None:
+        n_realistic = int((dm.store.read().origin == Origin.REALISTIC).sum())
     trainer = instantiate(det["trainer"])(max_epochs=rounds_cb.max_epochs,
                                           logger=logger if logger is not None else False,
                                           **trainer_progress(bool(det.get("progress_bar", False)), name, [rounds_cb]))
@@ -190,10 +228,11 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     final = module.net.cpu()
     save_detector(rd.detector, final, det, method, pd_unit)
     preds = rd.test_predictions
+    on_codes = DetectorOnCodes(final, space)  # (the detector itself for one that reads codes only)
     with atomic_path(preds) as tmp:
-        np.savez_compressed(tmp, **predict_test_set(final, test))
+        np.savez_compressed(tmp, **predict_test_set(on_codes, test))
     out = {"rounds": rounds_cb.rounds, "detector": {**summary(), "resumed": resuming,
-                                                    "inference_us": inference_us(final, test.z)}}
+                                                    "inference_us": inference_us(on_codes, test.z)}}
     write_json_atomic(rounds_path, {"finished": rounds_cb.finished, "rounds": rounds_cb.rounds,
                                     "summary": out["detector"]})
     dm.close()

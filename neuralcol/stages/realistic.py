@@ -33,6 +33,7 @@ from neuralcol.data.realistic import (
 from neuralcol.handler.alm import ALMSettings
 from neuralcol.handler.resolve import displacement_stats, resolve_meshes
 from neuralcol.metrics.detection import detection_metrics
+from neuralcol.nn.part_geometry import code_mesh_logits
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.files import atomic_path
 
@@ -169,6 +170,11 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
     v = torch.as_tensor(meshes.vertices, dtype=torch.float64)
     z, pd_rt = round_trip_pd(space, v, pool)
     logit = detector_logits(net, z.numpy())
+    core = getattr(net, "detector", None)  # DetectorOnCodes around a detector that reads the mesh too (issue 41)
+    logit_decoded = None
+    if core is not None and core.geometry is not None:  # it judges each mesh by its own geometry, as detect(mesh)
+        logit_decoded = logit
+        logit = code_mesh_logits(core, z.numpy(), meshes.vertices)
     pred = logit > 0
     clear = clear_mask(pd, eps, float(c["clear_eps"]))
     labeled = np.isfinite(pd)
@@ -195,6 +201,8 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
             "detection_out_of_box": _detection(pred[clear & oob], truth[clear & oob]),
         },
     }
+    if logit_decoded is not None:  # the same detector on the round trip's decoded geometry, for comparison
+        metrics["detection_decoded"] = _detection(logit_decoded[clear] > 0, truth[clear])
     if references:
         metrics["round_trip"]["references"] = {}
         for name, ref in references.items():

@@ -150,6 +150,16 @@ def cascade_points(cascade: dict | None, exact_sps: float | None = None, detecto
     return out
 
 
+CODE_AND_MESH = "code+mesh detector"  # the point family of a detector over code and mesh (issue 41)
+
+
+def detector_family(net) -> str:
+    """The speed points' method name of a run's detector: ``latent detector`` (codes only) or
+    :data:`CODE_AND_MESH` (a :class:`~neuralcol.nn.part_geometry.DetectorOnCodes` whose detector reads the mesh)."""
+    inner = getattr(net, "detector", None)
+    return CODE_AND_MESH if inner is not None and inner.geometry is not None else "latent detector"
+
+
 def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict | None = None, mesh_net=None,
                            run_dir: str | Path | None = None, log: Callable[[str], None] = print) -> dict:
     """Throughput against accuracy and FNR of each method on the run's U(Z) test set (see the module docstring).
@@ -200,6 +210,7 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
     exact = ExactLabeler(faces, rest, partition=partition, **settings)
     threads = torch.get_num_threads()
     net = copy.deepcopy(net).cpu().eval()  # the caller's network stays where and as it was
+    family = detector_family(net)
 
     # ---------------------------------------------------------------- the methods: code(s) -> verdicts
     mesh_methods: dict[tuple[str, str], Callable[[np.ndarray], object]] = {("exact", "verdict"): exact.verdict}
@@ -221,7 +232,7 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
     forms = ["float32", *[f for f in c["forms"] if f != "float32"]]  # eager float32: the run's own forward pass
     for form in forms:
         for compiled in ([False, True] if c["compile"] and form in c["forms"] else [False]):
-            key = ("latent detector", f"{form} {'compiled' if compiled else 'eager'}")
+            key = (family, f"{form} {'compiled' if compiled else 'eager'}")
             t0 = time.perf_counter()
             try:
                 detectors[key] = FastDetector.from_form(net, form, compile=compiled)
@@ -234,6 +245,9 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
         from neuralcol.nn.mesh_detector import code_logits
 
         mesh_net = copy.deepcopy(mesh_net).cpu().eval()
+    elif family == CODE_AND_MESH:
+        notes.append(f"{family}: its time includes decoding the {len(net.detector.geometry.vertex_index)} vertices "
+                     "its pair features read")
     else:
         notes.append("no mesh detector in this run (mesh_detector.enabled=false): left out")
 
@@ -315,7 +329,7 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
     cascade = metrics.get("cascade")
     if cascade:
         exact_key = ("exact", "verdict") if ("exact", "verdict") in sps else ("exact", "label + PD")
-        points += cascade_points(cascade, sps[exact_key], sps.get(("latent detector", "float32 eager")))
+        points += cascade_points(cascade, sps[exact_key], sps.get((family, "float32 eager")))
         notes.append("cascade: samples/s priced with this stage's timings (eager float32 detector on every code, exact "
                      f"{exact_key[1]} on its exact share); samples_per_s_stage: the cascade stage's own figure")
     else:

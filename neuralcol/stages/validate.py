@@ -51,6 +51,15 @@ def config_problems(cfg: DictConfig) -> list[str]:
                 "detector.targets.pd_clip", "detector.net.width"):
         need(key, lambda v: float(v) > 0, "must be > 0")
     need("labeling.labeler.touch_tol", lambda v: float(v) >= 0, "must be >= 0")
+    if _get(cfg, "detector.inputs") is not None:  # issue 41: the detector over code and mesh
+        need("detector.inputs", lambda v: v in ("latent", "code_and_mesh"), "use latent or code_and_mesh")
+    if _get(cfg, "detector.inputs") == "code_and_mesh":
+        for key in ("detector.geometry.per_part", "detector.geometry.select_codes", "detector.geometry.hidden"):
+            need(key, lambda v: is_int(v) and v >= 1, "must be an integer >= 1")
+        need("detector.geometry.min_hops", lambda v: is_int(v) and v >= 0, "must be an integer >= 0")
+        for key in ("detector.geometry.radius", "detector.geometry.fold_ratio", "detector.geometry.clip"):
+            need(key, lambda v: float(v) > 0, "must be > 0")
+        need("detector.geometry.pool", lambda v: v in ("linear", "deepsets"), "use linear or deepsets")
     threads = _get(cfg, "threads")
     if threads is not None and not (is_int(threads) and threads >= 1):  # null: the machine's default
         problems.append(f"threads={threads!r}: must be an integer >= 1 (1, the default, gives the same numbers on "
