@@ -11,11 +11,13 @@ see ``neuralcol/utils/resume.py`` and ``docs/reliability.md``).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import time
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 
 import hydra
 import numpy as np
@@ -53,169 +55,233 @@ from neuralcol.utils.seeding import seed_everything
 from neuralcol.utils.threads import pin_threads
 
 
+class RunState(SimpleNamespace):
+    """What the stages of :func:`run` share: ``cfg``, ``run_dir``, ``ctx`` (the :class:`~neuralcol.pipeline.
+    RunContext`), ``rd`` (its files), ``metrics`` (filled stage by stage) and what each stage leaves for the next
+    (the data set, the latent space, the label pool, the test set, the final detector, ...)."""
+
+    def detector(self) -> DetectorOnCodes:
+        """The final detector (``detector.pt``, read once) as a function of codes."""
+        if self.net is None:
+            self.net = DetectorOnCodes(load_detector(self.rd.detector)[0], self.space)
+        return self.net
+
+
+def stage_data(s: RunState) -> None:
+    """The data set, its ACAP features (and, with ``model_size=auto``, the sizes), the ACAP round trip and the
+    exact labels of the data set's own meshes (the paper assumes they are (nearly) collision-free)."""
+    t0 = time.perf_counter()
+    s.ds = s.ctx.dataset
+    t_load = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    s.feats = s.ctx.features
+    t_encode = time.perf_counter() - t0
+    if s.cfg.get("model_size") is not None and s.cfg.model_size.mode == "auto":  # choose the sizes first (issue 17)
+        s.cfg, s.size_doc = search_model_size(s.cfg, s.run_dir, s.ds, s.feats, run, train_or_load_latent_space)
+        seed_everything(s.cfg.seed if s.cfg.seed is not None else None)  # as if the sizes had been given
+        s.ctx = s.ctx.reconfigured(s.cfg)
+    s.recon, acap_metrics = acap_round_trip(s.ds, s.feats)
+    with s.ctx.pool(s.ctx.labeler(), desc="labeling data set") as pool:
+        label_metrics = dataset_labels(s.ds, pool)
+    ds = s.ds
+    s.metrics.update({
+        "dataset": {"name": s.cfg.dataset.name, "source": ds.source, "n_meshes": len(ds),
+                    "n_vertices": ds.n_vertices, "n_faces": int(ds.faces.shape[0]), "load_seconds": t_load},
+        "acap": {**{k_: v for k_, v in acap_metrics.items() if k_ != "decode_ms_per_mesh"},
+                 "features_seconds": t_encode, "features_from_cache": s.feats.from_cache,
+                 "decode_ms_per_mesh": acap_metrics["decode_ms_per_mesh"]},
+        "dataset_labels": label_metrics})
+
+
+def stage_latent(s: RunState) -> None:
+    """The latent space (trained, or loaded from the cache; TensorBoard: one run per stage under
+    ``<run dir>/tensorboard/``) and a picture of its sub-domains."""
+    t0 = time.perf_counter()
+    s.space, s.ae_report, s.ae_cached = s.ctx.latent_space(lambda stage: stage_logger(s.run_dir, stage))
+    s.t_ae = time.perf_counter() - t0
+    part = s.space.partition.numpy()
+    faces, rest = s.ctx.faces, s.ctx.rest
+    render_mesh_png(s.rd.subdomains_png, rest, faces, partition_colors(part),
+                    title=f"{s.cfg.dataset.name}: {s.space.n_parts} sub-domains")
+    colors = (partition_colors(part)[:, :3] * 255).astype("uint8")
+    data_logger = stage_logger(s.run_dir, "data")
+    data_logger.experiment.add_mesh("subdomains", vertices=torch.as_tensor(rest[None]).float(),
+                                    colors=torch.as_tensor(colors[None]), faces=torch.as_tensor(faces[None]))
+    data_logger.finalize("success")
+
+
+def stage_open_pool(s: RunState) -> None:
+    """The sample labeler's pool (open until :func:`stage_close_pool`), the fitted box and its probe, the oracle,
+    the shared U(Z) test set and the handler's inputs (its first colliding rows)."""
+    s.sample_labeler = s.ctx.sample_labeler()
+    s.t_det0 = time.perf_counter()  # (the detector's stage time counts the box fit and the test set too)
+    s.settings = alm_settings(s.cfg.handler.alm)
+    s.ref_spaces, s.ref_errors = s.ctx.references  # PCA at the same |Z_all| (issue 40)
+    s.pool = s.pool_stack.enter_context(s.ctx.pool(s.sample_labeler))
+    s.box_fit = s.ctx.fit_box(s.pool, s.sample_labeler)  # issue 40: the box scaled until U(Z) is worth sampling
+    s.ae_report = s.ctx.latent_space().report  # a fitted box has its own cache key
+    s.oracle = s.ctx.oracle(s.pool)
+    s.box_probe = box_stage(s.space, s.ref_spaces, s.pool, s.cfg, s.box_fit)
+    s.test, _, _ = shared_test_set(s.oracle, s.cfg.detector, s.ae_report["cache_key"], s.cfg.paths.cache_dir)
+    pick = np.flatnonzero(s.test.pd > 0)[: int(s.cfg.handler.n_inputs)]
+    s.z_user, s.pd_user = torch.as_tensor(s.test.z[pick]), s.test.pd[pick]
+    s.pd_sub_user = s.test.pd_sub[pick]
+    s.samples_dir = s.ctx.samples_dir(s.sample_labeler)
+
+
+def stage_detector(s: RunState) -> None:
+    """The neural collision detector, trained by the configured method round by round (``detector.inputs``:
+    on the codes, or on code and mesh with the realistic training meshes among its rows, issue 41)."""
+    cfg = s.cfg
+    s.logger = stage_logger(s.run_dir, f"detector_{cfg.method.name}")
+
+    def handling(net):  # per round the detector alone (paper Fig. 5); the verified variant is for the final one
+        return evaluate_handler(net, s.oracle, s.z_user, s.pd_user, s.settings, int(cfg.handler.batch_size))[0]
+
+    real_rows = None
+    if detector_inputs(cfg.detector) == "code_and_mesh" and cfg.detector.geometry.realistic_rows:
+        real_rows = realistic_rows(s.space, s.ds.vertices.numpy(), s.feats.features.numpy(), s.feats.acap,
+                                   s.ae_report["train_index"], s.pool, cfg.mesh_detector.train_set, s.samples_dir,
+                                   float(s.sample_labeler.eps))
+    s.det = train_detector(s.space, s.oracle, cfg.detector, cfg.method, s.ae_report["cache_key"], int(cfg.seed),
+                           cfg.paths.cache_dir, s.run_dir, s.logger,
+                           round_eval=handling if cfg.handler.eval_every_round and len(s.z_user) else None,
+                           real_rows=real_rows)
+    s.t_det = time.perf_counter() - s.t_det0
+
+
+def stage_calibration(s: RunState) -> None:
+    """The certified cascade's bands (issue 29), one per target FNR, chosen on its calibration set."""
+    if s.cfg.detector.get("cascade") is not None and s.cfg.detector.cascade.enabled:
+        s.bands, s.calib_collides = calibrate(s.detector(), s.oracle, s.cfg.detector, s.ae_report["cache_key"],
+                                              s.cfg.paths.cache_dir, s.rd.cascade)
+
+
+def stage_handler(s: RunState) -> None:
+    """The collision handler with the final detector (``handler.n_inputs = 0`` skips it); verified exactly, and
+    through the cascade of each band."""
+    cfg = s.cfg
+    if len(s.z_user):
+        s.metrics["handling"], s.handling_arrays = evaluate_handler(
+            s.detector(), s.oracle, s.z_user, s.pd_user, s.settings, int(cfg.handler.batch_size),
+            list(cfg.handler.verify_margins), certify=s.bands if cfg.detector.cascade.get("handler") else None)
+
+
+def stage_mesh_detector(s: RunState) -> None:
+    """The separate detector that reads the mesh (issue 27; not beside the detector over code and mesh)."""
+    if s.cfg.mesh_detector.enabled and detector_inputs(s.cfg.detector) != "code_and_mesh":
+        s.mesh_net, s.metrics["mesh_detector"] = mesh_detector_stage(
+            s.space, s.ds.vertices.numpy(), s.feats.features.numpy(), s.feats.acap, s.ae_report["train_index"],
+            s.pool, s.cfg.mesh_detector, s.samples_dir, float(s.sample_labeler.eps), s.rd.dc, int(s.cfg.seed),
+            s.run_dir, test=s.test, logger=stage_logger(s.run_dir, "mesh_detector"))
+
+
+def stage_realistic(s: RunState) -> None:
+    """The realistic set (issue 27): meshes nobody trained on, labeled exactly, judged beside U(Z)."""
+    cfg = s.cfg
+    if not cfg.realistic.enabled:
+        return
+    t_r = time.perf_counter()
+    meshes, pd_real, real_cached = realistic_set(
+        s.ds.vertices.numpy(), s.feats.features.numpy(), s.feats.acap, s.ae_report["val_index"], s.pool,
+        cfg.realistic, s.samples_dir, float(s.sample_labeler.eps))
+    m, s.real_arrays = evaluate_realistic(
+        s.space, s.detector(), meshes, pd_real, s.pool, float(s.sample_labeler.eps), cfg.realistic, s.settings,
+        list(cfg.handler.verify_margins), int(cfg.handler.batch_size), mesh_net=s.mesh_net,
+        repair=repair_from_config(cfg), references=s.ref_spaces)
+    m.update({"from_cache": real_cached, "stage_seconds": time.perf_counter() - t_r})
+    np.savez_compressed(s.rd.realistic_predictions, **s.real_arrays)
+    log_realistic(s.logger, m, s.det["rounds"][-1]["dataset_size"])
+    s.metrics["realistic"] = m
+
+
+def stage_cascade(s: RunState) -> None:
+    """The cascade's bands on the U(Z) test set and the realistic set, its throughput against the exact labeler."""
+    if s.bands is None:
+        return
+    net = s.detector()
+    detector_us = inference_us(net, s.test.z, batch_sizes=(4096,))["batch_4096"]
+    s.metrics["cascade"] = cascade_stage(net, s.space, s.sample_labeler, s.test, s.bands, s.calib_collides,
+                                         s.cfg.detector, detector_us, s.real_arrays)
+    log_cascade(s.logger, s.metrics["cascade"], s.det["rounds"][-1]["dataset_size"])
+
+
+def stage_close_pool(s: RunState) -> None:
+    s.pool_stack.close()
+    s.pool = None
+
+
+def stage_exports(s: RunState) -> None:
+    """The handled examples and the data set's example meshes, the handler's TensorBoard scalars."""
+    cfg, h = s.cfg, s.metrics.get("handling")
+    step = s.det["rounds"][-1]["dataset_size"]
+    if h is not None:
+        export_handling(s.rd.handling, s.handling_arrays, s.space, s.sample_labeler, int(cfg.handler.n_examples),
+                        title=f"{cfg.dataset.name}, {cfg.method.name}", pd_sub_before=s.pd_sub_user)
+        handling_logger = stage_logger(s.run_dir, "handling")
+        for key in ("success_rate", "resolved_rate", "mean_pd_reduction", "mean_embedding_diff"):
+            handling_logger.experiment.add_scalar(f"handling/{key}", h[key], global_step=step)
+        handling_logger.finalize("success")
+    s.logger.finalize("success")
+    k = min(int(cfg.n_example_meshes), len(s.ds))
+    if k > 0:
+        write_meshes(s.rd.examples / "input", s.ds.vertices[:k], s.ds.faces, s.ds.names[:k])
+        write_meshes(s.rd.examples / "acap_reconstruction", s.recon[:k], s.ds.faces, s.ds.names[:k])
+
+
+def stage_summary(s: RunState) -> None:
+    """The latent space's and the detector's metrics (the model-size choice too)."""
+    ae, det = s.ae_report, s.det
+    s.metrics.update({
+        "autoencoder": {**{k_: v for k_, v in ae.items() if k_ not in ("train_index", "val_index")},
+                        "from_cache": s.ae_cached, "stage_seconds": s.t_ae, "references": s.ref_errors},
+        "latent": {"dim": s.space.dim, "n_parts": s.space.n_parts,
+                   "uniform_collision_fraction": det["detector"]["test_set"]["base_rate"],
+                   "box_probe": s.box_probe},
+        "detector": {**det["detector"], "stage_seconds": s.t_det},
+        "rounds": det["rounds"]})
+    if s.size_doc is not None:
+        s.metrics["model_size"] = {k: s.size_doc[k] for k in ("chosen", "chosen_accuracy", "best_accuracy",
+                                                              "budget", "default", "rule")}
+
+
+def stage_speed(s: RunState) -> None:
+    """Throughput against accuracy of every method (issue 29); last, as it reads the other stages' metrics."""
+    sa_cfg, cfg = s.cfg.get("speed_accuracy"), s.cfg
+    if sa_cfg is None or not sa_cfg.enabled:
+        return
+    sa = measure_speed_accuracy(s.space, s.detector(), s.test, sa_cfg, cfg.labeling, s.metrics, s.mesh_net,
+                                s.run_dir)
+    s.metrics["speed_accuracy"] = sa
+    plot_speed_accuracy(sa["points"], s.rd.speed_accuracy_png, f"{cfg.dataset.name}, {cfg.method.name}, seed "
+                        f"{cfg.seed}: speed against accuracy (torch threads: {sa['threads']})")
+
+
+# the pipeline, in order; each stage reads what the earlier ones left in the RunState and adds its own
+STAGES = (stage_data, stage_latent, stage_open_pool, stage_detector, stage_calibration, stage_handler,
+          stage_mesh_detector, stage_realistic, stage_cascade, stage_close_pool, stage_exports, stage_summary,
+          stage_speed)
+
+
 def run(cfg: DictConfig, run_dir: Path) -> dict:
-    """Run the pipeline for ``cfg`` and write results into ``run_dir``; returns the metrics dict."""
+    """Run the pipeline (:data:`STAGES`) for ``cfg`` and write results into ``run_dir``; returns the metrics dict."""
     validate_run_config(cfg)  # every settings error at once, before any work
     validate_model_size(cfg)
     pin_threads(cfg.get("threads", 1))  # before any work: the numbers must not depend on the core count
     seed_everything(cfg.seed if cfg.seed is not None else None)
     ctx = RunContext(cfg, run_dir)
-    rd = ctx.run_dir
-    t0 = time.perf_counter()
-    ds = ctx.dataset
-    t_load = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    feats = ctx.features
-    t_encode = time.perf_counter() - t0
-    size_doc = None
-    if cfg.get("model_size") is not None and cfg.model_size.mode == "auto":  # choose the sizes first (issue 17)
-        cfg, size_doc = search_model_size(cfg, run_dir, ds, feats, run, train_or_load_latent_space)
-        seed_everything(cfg.seed if cfg.seed is not None else None)  # as if the sizes had been given
-        ctx = ctx.reconfigured(cfg)
-    recon, acap_metrics = acap_round_trip(ds, feats)
-    faces, rest = ctx.faces, ctx.rest
-    # exact labels of the data set's own meshes (the paper assumes they are (nearly) collision-free)
-    with ctx.pool(ctx.labeler(), desc="labeling data set") as pool:
-        label_metrics = dataset_labels(ds, pool)
-    # bilevel autoencoder (trained, or loaded from the cache) and its latent space; TensorBoard: one run per
-    # stage under <run dir>/tensorboard/ (neuralcol/metrics/tensorboard.py)
-    t0 = time.perf_counter()
-    space, ae_report, ae_cached = ctx.latent_space(lambda stage: stage_logger(run_dir, stage))
-    t_ae = time.perf_counter() - t0
-    part = space.partition.numpy()
-    render_mesh_png(rd.subdomains_png, rest, faces, partition_colors(part),
-                    title=f"{cfg.dataset.name}: {space.n_parts} sub-domains")
-    colors = (partition_colors(part)[:, :3] * 255).astype("uint8")
-    data_logger = stage_logger(run_dir, "data")
-    data_logger.experiment.add_mesh("subdomains", vertices=torch.as_tensor(rest[None]).float(),
-                               colors=torch.as_tensor(colors[None]), faces=torch.as_tensor(faces[None]))
-    data_logger.finalize("success")
-    logger = stage_logger(run_dir, f"detector_{cfg.method.name}")
-    # the neural collision detector, trained by the configured method on labeled decoded samples
-    sample_labeler = ctx.sample_labeler()
-    t0 = time.perf_counter()
-    settings = alm_settings(cfg.handler.alm)
-    ref_spaces, ref_errors = ctx.references  # PCA at the same |Z_all| (issue 40)
-    with ctx.pool(sample_labeler) as pool:
-        box_fit = ctx.fit_box(pool, sample_labeler)  # issue 40: the box scaled until U(Z) is worth sampling
-        ae_report = ctx.latent_space().report  # a fitted box has its own cache key
-        oracle = ctx.oracle(pool)
-        box_probe = box_stage(space, ref_spaces, pool, cfg, box_fit)
-        # inputs of the collision handler: the first colliding rows of the shared test set
-        test, _, _ = shared_test_set(oracle, cfg.detector, ae_report["cache_key"], cfg.paths.cache_dir)
-        pick = np.flatnonzero(test.pd > 0)[: int(cfg.handler.n_inputs)]
-        z_user, pd_user, pd_sub_user = torch.as_tensor(test.z[pick]), test.pd[pick], test.pd_sub[pick]
-
-        def handling(net):
-            # per round the detector alone (paper Fig. 5); the verified variant is for the final detector
-            return evaluate_handler(net, oracle, z_user, pd_user, settings, int(cfg.handler.batch_size))[0]
-
-        # issue 41: the detector over code and mesh trains on realistic training meshes too (rows of D_c)
-        samples_dir = ctx.samples_dir(sample_labeler)
-        one_detector = detector_inputs(cfg.detector) == "code_and_mesh"
-        real_rows = None
-        if one_detector and cfg.detector.geometry.realistic_rows:
-            real_rows = realistic_rows(space, ds.vertices.numpy(), feats.features.numpy(), feats.acap,
-                                       ae_report["train_index"], pool, cfg.mesh_detector.train_set, samples_dir,
-                                       float(sample_labeler.eps))
-        det = train_detector(space, oracle, cfg.detector, cfg.method, ae_report["cache_key"], int(cfg.seed),
-                             cfg.paths.cache_dir, run_dir, logger,
-                             round_eval=handling if cfg.handler.eval_every_round and len(z_user) else None,
-                             real_rows=real_rows)
-        t_det = time.perf_counter() - t0
-
-        def final_detector():  # the final detector as a function of codes (decoding what its features read)
-            return DetectorOnCodes(load_detector(rd.detector)[0], space)
-
-        # the certified cascade (issue 29): a band of doubt per target FNR, chosen on its calibration set
-        bands, calib_collides = None, None
-        if cfg.detector.get("cascade") is not None and cfg.detector.cascade.enabled:
-            net = final_detector()
-            bands, calib_collides = calibrate(net, oracle, cfg.detector, ae_report["cache_key"], cfg.paths.cache_dir,
-                                              rd.cascade)
-        # the collision handler with the final detector (handler.n_inputs = 0 skips it); verified exactly, and
-        # through the cascade of each band
-        handling_metrics, arrays = None, None
-        if len(z_user):
-            net = final_detector()
-            handling_metrics, arrays = evaluate_handler(net, oracle, z_user, pd_user, settings,
-                                                        int(cfg.handler.batch_size), list(cfg.handler.verify_margins),
-                                                        certify=bands if cfg.detector.cascade.get("handler")
-                                                        else None)
-        # the detector that reads the mesh (issue 27): decoded D_c + realistic training meshes (not beside the
-        # detector over code and mesh, which reads the mesh itself)
-        mesh_net, mesh_report = None, None
-        if cfg.mesh_detector.enabled and not one_detector:
-            mesh_net, mesh_report = mesh_detector_stage(
-                space, ds.vertices.numpy(), feats.features.numpy(), feats.acap, ae_report["train_index"], pool,
-                cfg.mesh_detector, samples_dir, float(sample_labeler.eps), rd.dc, int(cfg.seed),
-                run_dir, test=test, logger=stage_logger(run_dir, "mesh_detector"))
-        # the realistic set (issue 27): meshes nobody trained on, labeled exactly, next to U(Z)
-        realistic_metrics = None
-        if cfg.realistic.enabled:
-            t_r = time.perf_counter()
-            meshes, pd_real, real_cached = realistic_set(
-                ds.vertices.numpy(), feats.features.numpy(), feats.acap, ae_report["val_index"], pool,
-                cfg.realistic, samples_dir, float(sample_labeler.eps))
-            net = final_detector()
-            realistic_metrics, real_arrays = evaluate_realistic(
-                space, net, meshes, pd_real, pool, float(sample_labeler.eps), cfg.realistic, settings,
-                list(cfg.handler.verify_margins), int(cfg.handler.batch_size), mesh_net=mesh_net,
-                repair=repair_from_config(cfg), references=ref_spaces)
-            realistic_metrics.update({"from_cache": real_cached, "stage_seconds": time.perf_counter() - t_r})
-            np.savez_compressed(rd.realistic_predictions, **real_arrays)
-            log_realistic(logger, realistic_metrics, det["rounds"][-1]["dataset_size"])
-        # the cascade's bands on the U(Z) test set and the realistic set, its throughput against the exact labeler
-        cascade_metrics = None
-        if bands is not None:
-            net = final_detector()
-            detector_us = inference_us(net, test.z, batch_sizes=(4096,))["batch_4096"]
-            cascade_metrics = cascade_stage(net, space, sample_labeler, test, bands, calib_collides, cfg.detector,
-                                            detector_us, real_arrays if realistic_metrics is not None else None)
-            log_cascade(logger, cascade_metrics, det["rounds"][-1]["dataset_size"])
-    if handling_metrics is not None:
-        export_handling(rd.handling, arrays, space, sample_labeler, int(cfg.handler.n_examples),
-                        title=f"{cfg.dataset.name}, {cfg.method.name}", pd_sub_before=pd_sub_user)
-        handling_logger = stage_logger(run_dir, "handling")
-        for key in ("success_rate", "resolved_rate", "mean_pd_reduction", "mean_embedding_diff"):
-            handling_logger.experiment.add_scalar(f"handling/{key}", handling_metrics[key],
-                                                  global_step=det["rounds"][-1]["dataset_size"])
-        handling_logger.finalize("success")
-    logger.finalize("success")
-    k = min(int(cfg.n_example_meshes), len(ds))
-    if k > 0:
-        write_meshes(rd.examples / "input", ds.vertices[:k], ds.faces, ds.names[:k])
-        write_meshes(rd.examples / "acap_reconstruction", recon[:k], ds.faces, ds.names[:k])
-    metrics = {
-        "dataset": {"name": cfg.dataset.name, "source": ds.source, "n_meshes": len(ds),
-                    "n_vertices": ds.n_vertices, "n_faces": int(ds.faces.shape[0]), "load_seconds": t_load},
-        "acap": {**{k_: v for k_, v in acap_metrics.items() if k_ != "decode_ms_per_mesh"},
-                 "features_seconds": t_encode, "features_from_cache": feats.from_cache,
-                 "decode_ms_per_mesh": acap_metrics["decode_ms_per_mesh"]},
-        "dataset_labels": label_metrics,
-        "autoencoder": {**{k_: v for k_, v in ae_report.items() if k_ not in ("train_index", "val_index")},
-                        "from_cache": ae_cached, "stage_seconds": t_ae, "references": ref_errors},
-        "latent": {"dim": space.dim, "n_parts": space.n_parts,
-                   "uniform_collision_fraction": det["detector"]["test_set"]["base_rate"], "box_probe": box_probe},
-        "detector": {**det["detector"], "stage_seconds": t_det},
-        "rounds": det["rounds"],
-        "handling": handling_metrics,
-        "mesh_detector": mesh_report,
-        "realistic": realistic_metrics,
-        "cascade": cascade_metrics,
-    }
-    if size_doc is not None:
-        metrics["model_size"] = {k: size_doc[k] for k in ("chosen", "chosen_accuracy", "best_accuracy", "budget",
-                                                            "default", "rule")}
-    sa_cfg = cfg.get("speed_accuracy")
-    if sa_cfg is not None and sa_cfg.enabled:  # issue 29: last, as it reads the other stages' metrics (cascade)
-        sa = measure_speed_accuracy(space, DetectorOnCodes(load_detector(rd.detector)[0], space), test, sa_cfg,
-                                    cfg.labeling, metrics, mesh_net, run_dir)
-        metrics["speed_accuracy"] = sa
-        plot_speed_accuracy(sa["points"], rd.speed_accuracy_png, f"{cfg.dataset.name}, {cfg.method.name}, seed "
-                            f"{cfg.seed}: speed against accuracy (torch threads: {sa['threads']})")
+    metrics = {"handling": None, "mesh_detector": None, "realistic": None, "cascade": None}
+    s = RunState(cfg=cfg, run_dir=run_dir, ctx=ctx, rd=ctx.run_dir, metrics=metrics, size_doc=None, net=None,
+                 mesh_net=None, bands=None, calib_collides=None, real_arrays=None, handling_arrays=None,
+                 pool=None, logger=None)
+    with contextlib.ExitStack() as s.pool_stack:
+        for stage in STAGES:
+            stage(s)
+    order = ("dataset", "acap", "dataset_labels", "autoencoder", "latent", "detector", "rounds", "handling",
+             "mesh_detector", "realistic", "cascade", "model_size", "speed_accuracy")
+    metrics = {k: s.metrics[k] for k in order if k in s.metrics}
     log_latent(run_dir, metrics)
-    rd.metrics.write_text(json.dumps(metrics, indent=2))
+    s.rd.metrics.write_text(json.dumps(metrics, indent=2))
     return metrics
 
 

@@ -246,3 +246,14 @@ def test_a_copy_of_the_detector_on_codes_shares_the_space():
     assert next(twin.parameters()).dtype == torch.float64 and next(on_codes.parameters()).dtype == torch.float32
     z = torch.rand(3, 2, dtype=torch.float64)
     torch.testing.assert_close(twin(z).logit.float(), on_codes(z.float()).logit, rtol=1e-4, atol=1e-5)
+
+
+def test_features_of_the_few_vertices_equal_those_of_the_whole_mesh():
+    """PartGeometry reads only vertex_index (pairs and the faces around them, renumbered): the same features as
+    ContactFeatures on the whole mesh, whose normals use every face."""
+    torch.manual_seed(9)
+    geo = _geometry()
+    v = torch.as_tensor(REST)[None] + 0.2 * torch.randn(5, len(REST), 3, dtype=torch.float64)
+    whole = geo.contact(v).reshape(5, 3, -1).transpose(1, 2)
+    torch.testing.assert_close(geo.pair_features(v), whole)
+    torch.testing.assert_close(geo.features_of_vertices(v[:, geo.vertex_index]), whole)

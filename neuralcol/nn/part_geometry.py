@@ -29,7 +29,7 @@ import torch
 from scipy.spatial import cKDTree
 from torch import nn
 
-from neuralcol.geometry.contact_pairs import ContactFeatures, fold_pair_scores, hop_neighbourhood
+from neuralcol.geometry.contact_pairs import ContactFeatures, contact_features, fold_pair_scores, hop_neighbourhood
 
 
 def close_pair_scores(meshes: np.ndarray, collides: np.ndarray, rest: np.ndarray, faces: np.ndarray,
@@ -147,6 +147,11 @@ class PartGeometry(nn.Module):
         self.contact = ContactFeatures(pairs, faces, radius, clip)
         used = torch.unique(torch.cat([self.contact.pairs.reshape(-1), self.contact.faces.reshape(-1)]))
         self.register_buffer("vertex_index", used)  # the vertices the features read (pairs and their faces)
+        # the same pairs and faces numbered within vertex_index: the features of the V' vertices alone (not saved)
+        local = torch.full((int(used.max()) + 1 if len(used) else 1,), -1, dtype=torch.long)
+        local[used] = torch.arange(len(used))
+        self.register_buffer("local_pairs", local[self.contact.pairs], persistent=False)
+        self.register_buffer("local_faces", local[self.contact.faces], persistent=False)
         self.register_buffer("slots", torch.as_tensor(slots, dtype=torch.long))
         self.register_buffer("mask", torch.as_tensor(mask, dtype=torch.bool))
 
@@ -156,8 +161,13 @@ class PartGeometry(nn.Module):
 
     def pair_features(self, vertices: torch.Tensor) -> torch.Tensor:
         """(B, V, 3) whole meshes -> (B, P, 3) [dist, s_min, s_max] per pair."""
-        f = self.contact(vertices)  # (B, 3 P) as [dist..., s_min..., s_max...]
-        return f.reshape(len(f), 3, -1).transpose(1, 2)
+        return self.features_of_vertices(vertices[:, self.vertex_index])
+
+    def features_of_vertices(self, vertices: torch.Tensor) -> torch.Tensor:
+        """(B, V', 3) the vertices ``vertex_index`` only -> (B, P, 3): what :meth:`pair_features` gives for the
+        whole meshes (the normals at the pair vertices need only the faces around them)."""
+        f = contact_features(vertices, self.local_pairs, self.local_faces, self.contact.radius, self.contact.clip)
+        return f.reshape(len(f), 3, -1).transpose(1, 2)  # (B, 3 P) as [dist..., s_min..., s_max...] -> (B, P, 3)
 
     def per_part(self, pair_feats: torch.Tensor) -> torch.Tensor:
         """(B, P, 3) -> (B, K, M, 3), empty slots zero (use ``mask``)."""
@@ -168,10 +178,7 @@ class PartGeometry(nn.Module):
 def geometry_of_codes(geometry: PartGeometry, space, z_all: torch.Tensor) -> torch.Tensor:
     """Codes (B, D) -> the pair features (B, P, 3) of the meshes they decode to, decoding only the vertices the
     features read (``space.decode_vertices``); differentiable in ``z_all``."""
-    idx = geometry.vertex_index
-    part = space.decode_vertices(z_all, idx.cpu().numpy())  # (B, V', 3)
-    full = part.new_zeros(len(z_all), space.rest_vertices.shape[0], 3).index_copy(1, idx.to(part.device), part)
-    return geometry.pair_features(full)
+    return geometry.features_of_vertices(space.decode_vertices(z_all, geometry.vertex_index.cpu().numpy()))
 
 
 class DetectorOnCodes(nn.Module):

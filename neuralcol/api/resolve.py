@@ -1,0 +1,169 @@
+"""Resolving self-collisions with a :class:`~neuralcol.api.TrainedRun` (docs/handler.md, docs/real_meshes.md)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import torch
+from omegaconf import OmegaConf
+
+from neuralcol.api.results import OBJECTIVES, Resolved
+from neuralcol.errors import UserInputError
+
+
+class ResolveMixin:
+    """:class:`~neuralcol.api.TrainedRun`'s :meth:`resolve` (it uses the run's detector, space and label pool)."""
+
+    def repair_settings(self, repair: bool | None = None):
+        """The run's ``handler.repair`` (off for runs older than it) with ``repair`` forcing it on or off."""
+        from neuralcol.handler.contact_repair import repair_from_config
+
+        try:
+            return repair_from_config(self.cfg, enabled=repair)
+        except ValueError as e:
+            raise UserInputError(f"{self.run_dir}/.hydra/config.yaml: {e}") from e
+
+
+    def resolve(self, vertices_or_codes, objective: str = "latent", verify: bool = True, margins=None,
+                subset=None, anchor: str = "median", constraint: str = "latent",
+                repair: bool | None = None, certify: float | None = None) -> Resolved:
+        """Resolve self-collisions: meshes come back as the user's meshes, corrected; codes as decoded codes.
+
+        The augmented-Lagrangian handler (docs/handler.md) moves each input's latent code to the nearest code
+        the detector calls collision-free (the run's ``handler`` settings). For a **mesh**, the correction that
+        move implies (the handled code decoded minus the input's own round trip) is added to the input mesh
+        (:func:`~neuralcol.stages.handler.transfer_displacement`): the result is in the input's frame and
+        keeps its detail, and the exact labeler judges that returned mesh. For a **code**, the result is the
+        handled code decoded. With ``verify`` the results the exact labeler still finds self-penetrating are
+        handled again with the larger margins (``margins``, default the run's ``handler.verify_margins``) and
+        the lowest-PD result is kept; ``verify=False`` trusts the detector (PD after is still measured).
+
+        Args:
+            vertices_or_codes: meshes (N, V, 3) / (V, 3) or codes (N, D) / (D,), numpy or torch.
+            objective: ``"latent"`` (stay close to the input's code) or ``"cartesian"`` (stay close to the input
+                mesh's vertices; mesh inputs only).
+            verify: exact verification with margin escalation.
+            margins: verification margins, each above ``handler.alm.margin`` (None: the run's).
+            subset: ``objective="cartesian"``: (S,) vertex indices whose positions count (None: all).
+            anchor: mesh inputs: ``"median"`` (default) removes the translation the decoder's centroid pinning
+                adds to the correction; ``"none"`` keeps the raw difference of the decoded meshes.
+            constraint: mesh inputs: ``"latent"`` (default: the latent detector's logit on the code) or ``"mesh"``
+                (the detector that reads the mesh, on the mesh that would be returned, differentiated through
+                the decoder; slower, docs/real_meshes.md).
+            repair: mesh inputs with ``verify``: a returned mesh the exact labeler still finds self-penetrating
+                after the margins gets the contact repair (its intersecting triangles pushed apart, our addition;
+                docs/real_meshes.md); None: the run's ``handler.repair.enabled``.
+            certify: None, or a target FNR: verification through the certified cascade (needs ``verify``;
+                docs/cascade.md): a handled result is labeled exactly only where the latent detector's logit on its
+                code lies in the run's band for that target (:meth:`band`); below it the detector is trusted (free,
+                kept, ``pd_after`` NaN), at or above it the result counts as still colliding (handled again with the
+                next margin, then, for meshes, the contact repair). ``exact``, ``free`` and ``exact_share`` of the
+                result say which verdicts were exact. The inputs' ``pd_input`` / ``pd_before`` are measured as
+                without it.
+
+        Returns:
+            :class:`Resolved`.
+        """
+        from neuralcol.handler.objectives import CartesianObjective, LatentObjective
+        from neuralcol.handler.resolve import (
+            ANCHORS,
+            CertifiedLabel,
+            alm_settings,
+            certified_outcome,
+            detector_logits,
+            displacement_stats,
+            handle_codes,
+            resolve_meshes,
+            verified_escalation,
+        )
+
+        if objective not in OBJECTIVES:
+            raise UserInputError(f"objective={objective!r}; use one of {OBJECTIVES}")
+        if anchor not in ANCHORS:
+            raise UserInputError(f"anchor={anchor!r}; use one of {ANCHORS}")
+        if constraint not in ("latent", "mesh"):
+            raise UserInputError(f"constraint={constraint!r}; use 'latent' or 'mesh'")
+        if constraint == "mesh" and self.mesh_detector is None:
+            raise UserInputError(f"{self.run_dir}: constraint='mesh' needs the run's mesh_detector.pt")
+        band = None
+        if certify is not None:
+            if not verify:
+                raise UserInputError("certify decides which handled results the exact labeler verifies; it needs "
+                                     "verify=True")
+            if constraint == "mesh":
+                raise UserInputError("certify: the cascade's bands are calibrated on the latent detector's logits; "
+                                     "use constraint='latent' with certify")
+            band = self.band(certify)
+        x = vertices_or_codes
+        v_user = self._vertices(x) if self._is_vertices(x) else None
+        z_user = (self.encode(v_user) if v_user is not None else self._codes(x)).float().cpu()
+        if objective == "cartesian":
+            if v_user is None:
+                raise UserInputError("objective='cartesian' needs meshes (B, V, 3): their vertices are the targets")
+            if subset is not None:
+                subset = torch.as_tensor(np.asarray(subset), dtype=torch.long).reshape(-1)
+                if len(subset) == 0 or subset.min() < 0 or subset.max() >= self.n_vertices:
+                    raise UserInputError(f"subset: vertex indices must lie in [0, {self.n_vertices})")
+            target = CartesianObjective(self.space, v_user.float().to(self.device), vertices=subset)
+        else:
+            target = LatentObjective(z_user.to(self.device))
+        settings = alm_settings(self.cfg.handler.alm)
+        margins = [] if not verify else \
+            [float(m) for m in (margins if margins is not None else
+                                OmegaConf.select(self.cfg, "handler.verify_margins", default=[]))]
+        bad = [m for m in margins if m <= settings.margin]
+        if bad:
+            raise UserInputError(f"margins {bad} must exceed handler.alm.margin = {settings.margin}")
+        batch = int(self.cfg.handler.batch_size)
+        used_margins = np.array([settings.margin, *margins])
+        diag = self.diagonal
+        if v_user is not None:
+            rep = self.repair_settings(repair) if verify else None
+            if rep is not None:
+                self.label_pool()  # the repair asks the run's labeler in this process
+            res = resolve_meshes(self.on_codes, self.space, v_user, self._pd, settings, margins, batch,
+                                 objective=target, anchor=anchor, z_user=z_user,
+                                 mesh_net=self.mesh_detector if constraint == "mesh" else None,
+                                 repair=rep, labeler=self._exact if rep is not None else None, certify=band)
+            used_margins = np.append(used_margins, np.nan)
+            moved = displacement_stats(v_user.numpy(), res.vertices, diag)
+            return Resolved(vertices=torch.as_tensor(res.vertices, dtype=torch.float64, device=self.device),
+                            codes=res.codes.to(self.device), codes_before=z_user.to(self.device),
+                            pd_input=res.pd_input, pd_before=self._pd(self.decode(z_user)), pd_after=res.pd_after,
+                            margin=used_margins[res.stage], displacement_mean=moved["mean"],
+                            displacement_max=moved["max"], displacement_median=moved["median"], diagonal=diag,
+                            decoded=torch.as_tensor(res.decoded, dtype=torch.float32, device=self.device),
+                            repaired=res.repaired, exact=res.exact, free=res.free, exact_share=res.exact_share)
+
+        def handle(rows: np.ndarray, margin: float):
+            idx_map = torch.as_tensor(rows, device=self.device)
+            return handle_codes(self.on_codes, z_user[torch.as_tensor(rows)], self.space.box_lo, self.space.box_hi,
+                                replace(settings, margin=margin), batch_size=batch,
+                                objective=lambda z, idx: target(z, idx_map[idx]))
+
+        def label(z: torch.Tensor, rows=None) -> np.ndarray:
+            return self._pd(self.decode(z))
+
+        decide = label if band is None else \
+            CertifiedLabel(band, lambda z: detector_logits(self.on_codes, z), label)
+        res = handle(np.arange(len(z_user)), settings.margin)
+        pd_after = np.full(len(z_user), np.nan)
+        pd_after[res.finite.numpy()] = decide(res.z[res.finite])
+        z, stage = res.z.float(), np.zeros(len(z_user), dtype=np.int64)
+        if margins:
+            z, pd_after, stage, _ = verified_escalation(handle, decide, z_user, z, pd_after, margins)
+        exact = free = share = None
+        if band is not None:
+            pd_after, exact, free = certified_outcome(pd_after)
+            share = decide.exact_share
+        with torch.no_grad():  # (a failed result's code may be non-finite: no input check here)
+            verts = self.space.decode(z.to(self.device))
+            before = self.space.decode(z_user.to(self.device))
+        moved = displacement_stats(before.cpu().numpy(), verts.cpu().numpy(), diag)
+        nan = np.full(len(z_user), np.nan)
+        return Resolved(vertices=verts, codes=z.to(self.device), codes_before=z_user.to(self.device),
+                        pd_input=nan, pd_before=label(z_user), pd_after=pd_after, margin=used_margins[stage],
+                        displacement_mean=moved["mean"], displacement_max=moved["max"],
+                        displacement_median=moved["median"], diagonal=diag, decoded=verts, exact=exact, free=free,
+                        exact_share=share)

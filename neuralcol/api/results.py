@@ -1,0 +1,74 @@
+"""What :class:`~neuralcol.api.TrainedRun` answers: :class:`Detection` and :class:`Resolved`."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+OBJECTIVES = ("latent", "cartesian")
+
+
+class Detection(NamedTuple):
+    """The detector's answer for B codes (tensors on the run's device, float32).
+
+    prob (B,): collision probability. logit (B,): its logit (the handler's constraint is ``logit <= -margin``).
+    pd (B,): the detector's PD estimate in mesh units, ``pd_unit * smooth_max(S, temperature)`` (the quantity
+    its loss fits to the exact PD; trained on targets clipped to ``detector.loss.pd_clip`` units, so deep
+    penetrations saturate). pd_sub (B, K): the per-sub-domain estimates ``pd_unit * S_i``. outside_box (B,) bool:
+    the code (of a mesh: its encoding) lies outside the box Z the latent detector was trained in, so its answer is
+    an extrapolation (``run.detect(mesh, inputs="mesh")`` reads the mesh instead); None where not computed.
+    collides (B,) bool: the verdict: ``logit > 0``, or with ``certify`` the certified cascade's (the network below
+    and above the band, the exact label inside it; docs/cascade.md). exact (B,) bool: with ``certify``, the rows
+    the exact labeler decided (their ``prob`` is then 1.0 or 0.0, the exact answer); None without ``certify``.
+    """
+
+    prob: torch.Tensor
+    logit: torch.Tensor
+    pd: torch.Tensor
+    pd_sub: torch.Tensor
+    outside_box: torch.Tensor | None = None
+    collides: torch.Tensor | None = None
+    exact: torch.Tensor | None = None
+
+
+class Resolved(NamedTuple):
+    """Result of :meth:`TrainedRun.resolve` for N inputs.
+
+    vertices (N, V, 3): the resolved meshes. For mesh inputs (float64, the precision they were labeled in), the
+    input mesh plus the correction the handled code implies (in the input's frame, keeping its detail); for
+    code inputs (float32), the decoded ``codes``.
+    codes (N, D) float32: the handled latent codes. codes_before (N, D): the inputs' codes. pd_input (N,)
+    float64: exact PD of the input meshes (NaN for code inputs). pd_before (N,): exact PD of the decoded input
+    codes (the autoencoder's round trip). pd_after (N,): exact PD of the returned ``vertices`` (NaN: the
+    handler or the labeler failed). margin (N,): the detector-logit margin of the kept result (NaN where the
+    contact repair's mesh was kept). repaired (N,) bool: the contact repair (``handler.repair``, mesh inputs
+    with ``verify``) produced the returned mesh.
+    displacement_mean, displacement_max, displacement_median (N,): how far the returned vertices lie from the
+    input's (code inputs: from the decoded input code), in mesh units; divide by ``diagonal`` (the rest mesh's
+    bounding-box diagonal) for a fraction. decoded (N, V, 3) float32: the handled codes decoded (the latent
+    result, in the decoder's frame).
+    With ``certify`` (else None): exact (N,) bool: the verdict on the returned result is the exact labeler's
+    (``pd_after`` is NaN where the detector was trusted instead); free (N,) bool: the certified cascade calls the
+    returned result collision-free (exact PD <= 0, or the detector's logit below the band); exact_share: exact labels
+    per verification decision (the full verification labels every result: 1.0).
+    """
+
+    vertices: torch.Tensor
+    codes: torch.Tensor
+    codes_before: torch.Tensor
+    pd_input: np.ndarray
+    pd_before: np.ndarray
+    pd_after: np.ndarray
+    margin: np.ndarray
+    displacement_mean: np.ndarray
+    displacement_max: np.ndarray
+    displacement_median: np.ndarray
+    diagonal: float
+    decoded: torch.Tensor
+    repaired: np.ndarray | None = None
+    exact: np.ndarray | None = None
+    free: np.ndarray | None = None
+    exact_share: float | None = None
+
