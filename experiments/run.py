@@ -429,6 +429,12 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
     for r in metrics["rounds"]:
         print(f"  {r['dataset_size']:<8d} {r['accuracy']:.4f}    {r['fnr']:.4f}  {r['fpr']:.4f}  "
               f"{r['balanced_accuracy']:.4f}")
+    op = dt.get("operating_point")
+    if op:
+        at0 = metrics["rounds"][-1].get("at_logit_0") or {}
+        print(f"  (decision threshold: logit > {op['threshold']:.3f}, FNR <= {op['operating_fnr']:g} on "
+              f"{op['calibration']['n']} calibration codes; the last row is at it, at logit 0: accuracy "
+              f"{at0.get('accuracy', float('nan')):.4f}, FNR {at0.get('fnr', float('nan')):.4f})")
     h = metrics["handling"]
     if h is not None:
         print(f"collision handler on {h['n']} self-penetrating inputs, exact PD after handling:")

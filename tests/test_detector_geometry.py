@@ -257,3 +257,26 @@ def test_features_of_the_few_vertices_equal_those_of_the_whole_mesh():
     whole = geo.contact(v).reshape(5, 3, -1).transpose(1, 2)
     torch.testing.assert_close(geo.pair_features(v), whole)
     torch.testing.assert_close(geo.features_of_vertices(v[:, geo.vertex_index]), whole)
+
+
+def test_fnr_threshold_misses_at_most_the_target_and_the_shift_moves_the_decision():
+    from neuralcol.metrics.detection import fnr_threshold
+
+    rng = np.random.default_rng(4)
+    y = rng.random(400) < 0.4
+    logit = rng.normal(size=400) + 2.0 * y
+    for target in (0.0, 0.05, 0.1, 0.3):
+        t = fnr_threshold(logit, y, target)
+        fnr = np.mean(logit[y] <= t)
+        assert fnr <= target + 1e-12
+        k = int(np.floor(target * y.sum()))
+        assert np.mean(logit[y] <= np.sort(logit[y])[k]) > target, "a threshold at the next colliding logit misses more"
+    with pytest.raises(ValueError, match="no colliding row"):
+        fnr_threshold(logit, np.zeros(400, bool), 0.1)
+    with pytest.raises(ValueError, match="must lie in"):
+        fnr_threshold(logit, y, 1.0)
+    det = CollisionDetector(2, 0, state_dim=6, hidden=8)
+    z = torch.rand(9, 2)
+    before = det(z).logit.detach()
+    det.shift_decision(0.7)
+    torch.testing.assert_close(det(z).logit.detach(), before - 0.7)

@@ -24,6 +24,7 @@ def _cfg(scape_dir, tmp_path):
             f"paths.cache_dir={tmp_path}/cache", "n_example_meshes=0", "detector=tiny", "realistic=tiny",
             "mesh_detector=tiny", "speed_accuracy.enabled=false", "detector.cascade.enabled=false",
             "handler.n_inputs=4", "realistic.handler_inputs=0", "detector.inputs=code_and_mesh",
+            "detector.operating_fnr=0.1",
             "labeling.pool.workers=0", "labeling.pool.progress=false"])
 
 
@@ -76,5 +77,12 @@ def test_code_and_mesh_run_stores_features_resumes_and_judges_meshes(tmp_path, s
             want = net(trained.encode(v.double()), net.geometry_of_meshes(v.double())).logit
         torch.testing.assert_close(on_mesh.logit, want, rtol=1e-4, atol=1e-4)
         assert on_code.logit.shape == (1,)
+    # the operating point: the threshold with FNR <= 0.1 on the calibration set, folded into the output bias
+    op = d["operating_point"]
+    assert op["operating_fnr"] == 0.1 and op["calibration"]["fnr"] <= 0.1
+    last = metrics["rounds"][-1]
+    assert last["threshold"] == op["threshold"] and set(last["at_logit_0"]) >= {"accuracy", "fnr"}
+    with np.load(run_dir / "test_predictions.npz") as f:
+        assert last["fnr"] == pytest.approx(float(np.mean(f["logit"][f["collides"]] <= 0)))
     saved = json.loads((run_dir / "metrics.json").read_text())
     assert saved["detector"]["inputs"] == "code_and_mesh"

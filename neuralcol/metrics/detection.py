@@ -31,3 +31,22 @@ def detection_metrics(predicted: np.ndarray, actual: np.ndarray) -> dict[str, fl
     base = (tp + fn) / n
     return {"accuracy": (tp + tn) / n, "fnr": fnr, "fpr": fpr, "balanced_accuracy": 1.0 - (fnr + fpr) / 2,
             "base_rate": base, "majority_accuracy": max(base, 1.0 - base), "n": n}
+
+
+def fnr_threshold(logits: np.ndarray, collides: np.ndarray, target: float) -> float:
+    """The largest logit threshold ``t`` at which ``logit > t`` misses at most ``target`` of the colliding rows:
+    with k = floor(target * n_colliding), halfway between the colliding rows' k-th and (k+1)-th smallest logits
+    (k = 0: just below the smallest). The operating point of a detector set on a calibration set (issue 41).
+
+    Raises:
+        ValueError: ``target`` outside [0, 1) or no colliding row.
+    """
+    if not 0.0 <= float(target) < 1.0:
+        raise ValueError(f"target FNR {target} must lie in [0, 1)")
+    pos = np.sort(np.asarray(logits, np.float64)[np.asarray(collides, bool)])
+    if len(pos) == 0:
+        raise ValueError("no colliding row: the FNR of a threshold is undefined")
+    k = int(np.floor(float(target) * len(pos) + 1e-9))
+    if k == 0:
+        return float(pos[0] - 1e-3 * max(1.0, abs(pos[0])))
+    return float(0.5 * (pos[k - 1] + pos[k]))

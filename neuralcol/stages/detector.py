@@ -23,7 +23,7 @@ from hydra.utils import instantiate
 from neuralcol.active.rounds import Schedule
 from neuralcol.errors import UserInputError
 from neuralcol.lit.detector import DetectorLitModule, detector_module
-from neuralcol.metrics.detection import detection_metrics
+from neuralcol.metrics.detection import detection_metrics, fnr_threshold
 from neuralcol.metrics.tensorboard import log_round_examples
 from neuralcol.nn.detector import CollisionDetector, build_detector, net_widths, save_detector
 from neuralcol.nn.part_geometry import DetectorOnCodes, mesh_pair_features
@@ -109,6 +109,41 @@ def inference_us(net: CollisionDetector, z: np.ndarray, batch_sizes=(1, 4096), r
             out[f"batch_{int(b)}"] = 1e6 * float(np.median(times)) / int(b)
     out["threads"] = torch.get_num_threads()
     return out
+
+
+def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: dict, latent_key: str,
+                    cache_dir: str | Path, test: CollisionRows, last_round: dict) -> dict | None:
+    """Set the final detector's decision threshold (``detector.operating_fnr``; None: the paper's p > 0.5).
+
+    On the cascade's calibration set (uniform codes of U(Z), labeled once and cached, apart from the test set and
+    D_c) the largest logit threshold whose FNR is at most ``operating_fnr`` is found
+    (:func:`~neuralcol.metrics.detection.fnr_threshold`) and folded into MLP_c's output bias, so every user of the
+    detector (handler, cascade, ``detect``) decides at it. The last round's test metrics become those at the
+    threshold; the ones at logit 0 stay under ``at_logit_0``.
+
+    Returns:
+        ``{"operating_fnr", "threshold", "calibration": {n, fnr, fpr, accuracy at the threshold}}`` or None.
+    """
+    target = det.get("operating_fnr")
+    if target is None:
+        return None
+    from neuralcol.stages.cascade import calibration_set
+
+    calib, _, _ = calibration_set(oracle, det, latent_key, cache_dir)
+    on_codes = DetectorOnCodes(net, space)
+    y = np.asarray(calib.collides, bool)
+    logit = predict_test_set(on_codes, calib)["logit"]
+    t = fnr_threshold(logit, y, float(target))
+    net.shift_decision(t)
+    keys = ("accuracy", "fnr", "fpr", "balanced_accuracy", "base_rate", "majority_accuracy")
+    at0 = {k: last_round[k] for k in keys if k in last_round}
+    test_logit = predict_test_set(on_codes, test)["logit"]
+    last_round.update(detection_metrics(test_logit > 0, np.asarray(test.collides, bool)))
+    last_round["at_logit_0"] = at0
+    last_round["threshold"] = t
+    cal = detection_metrics(logit > t, y)
+    return {"operating_fnr": float(target), "threshold": t,
+            "calibration": {"n": int(len(y)), **{k: cal[k] for k in ("accuracy", "fnr", "fpr")}}}
 
 
 def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key: str, seed: int,
@@ -201,12 +236,14 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
                              "label_seconds": test_label_s, "seconds": test_s,
                              "n_label_failures": test_failures},
                 "pd_unit": pd_unit, "n_parameters": int(sum(p.numel() for p in net.parameters())),
+                "operating_point": operating,
                 "inputs": inputs, "n_pairs": 0 if geometry is None else int(geometry.n_pairs),
                 "n_vertices_read": 0 if geometry is None else int(len(geometry.vertex_index)),
                 "n_realistic_rows": n_realistic,
                 "net": {**net_widths(det["net"]), "width": float(det["net"].get("width", 1.0))}}
 
     n_realistic = 0  # realistic training meshes among D_c's rows (counted below)
+    operating = None  # the decision threshold set after the last round (operating_point)
     L.seed_everything(seed, workers=False, verbose=False)
     net = build_detector(space, det, geometry)
     module = detector_module(net, det, float(method["w_b"]), sched["bootstrap"].lr, space=space)
@@ -226,6 +263,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     with numpy_values_allowed():  # Lightning reads the checkpoint as read_torch_file does, never unpickling code
         trainer.fit(module, datamodule=dm, ckpt_path=str(ckpt) if resuming else None, weights_only=True)
     final = module.net.cpu()
+    operating = operating_point(final, space, oracle, det, latent_key, cache_dir, test, rounds_cb.rounds[-1])
     save_detector(rd.detector, final, det, method, pd_unit)
     preds = rd.test_predictions
     on_codes = DetectorOnCodes(final, space)  # (the detector itself for one that reads codes only)

@@ -53,6 +53,8 @@ def config_problems(cfg: DictConfig) -> list[str]:
     need("labeling.labeler.touch_tol", lambda v: float(v) >= 0, "must be >= 0")
     if _get(cfg, "detector.inputs") is not None:  # issue 41: the detector over code and mesh
         need("detector.inputs", lambda v: v in ("latent", "code_and_mesh"), "use latent or code_and_mesh")
+    if _get(cfg, "detector.operating_fnr") is not None:
+        need("detector.operating_fnr", lambda v: 0 <= float(v) < 1, "must lie in [0, 1) (null: the paper's p > 0.5)")
     if _get(cfg, "detector.inputs") == "code_and_mesh":
         for key in ("detector.geometry.per_part", "detector.geometry.select_codes", "detector.geometry.hidden"):
             need(key, lambda v: is_int(v) and v >= 1, "must be an integer >= 1")
