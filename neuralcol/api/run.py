@@ -170,8 +170,10 @@ class TrainedRun(CascadeMixin, ResolveMixin):
                inputs: str = "latent", certify: float | None = None) -> Detection:
         """The detector on meshes (B, V, 3) or codes (B, D), in batches of ``batch_size``.
 
-        ``inputs``: which detector judges. ``"latent"`` (default): the paper's detector on the code (a mesh is
-        encoded first: it then judges the autoencoder's round trip, not the mesh). ``"mesh"``: the detector that
+        ``inputs``: which detector judges. ``"latent"`` (default): the run's detector (``detector.pt``) on the code (a
+        mesh is encoded first: the paper's detector then judges the autoencoder's round trip, not the mesh; a run
+        whose detector reads code and mesh, ``detector.inputs=code_and_mesh`` (issue 41), reads the given mesh's own
+        contact-pair features beside its code, and a code's decoded ones). ``"mesh"``: the detector that
         reads the mesh (``mesh_detector.pt``, issue 27; codes are decoded first): on meshes nobody trained on it
         is far more accurate (proc_hand 0.891 against 0.634, SCAPE 0.815 against 0.637), but on SCAPE's U(Z) it
         is 1.7 points below the latent detector, so by the rule registered before the deciding runs it is not the
