@@ -93,8 +93,6 @@ class TrainedRun(CascadeMixin, ResolveMixin):
         self.device = torch.device(device)
         self.space = space.to(self.device).eval()
         self.detector = detector.to(self.device).eval()
-        # the detector as a function of codes (one over code and mesh decodes the vertices its features read)
-        self.on_codes = DetectorOnCodes(self.detector, self.space)
         self.mesh_detector = None if mesh_detector is None else mesh_detector.to(self.device).eval()
         self.pd_unit, self.temperature = float(pd_unit), float(temperature)
         # the label pool's settings that differ from the run's labeling.pool
@@ -105,6 +103,11 @@ class TrainedRun(CascadeMixin, ResolveMixin):
         self._calibration: tuple[np.ndarray, np.ndarray] | None = None  # cascade.npz (detect(..., certify=...))
 
     # ------------------------------------------------------------------ facts
+    @property
+    def on_codes(self) -> DetectorOnCodes:
+        """The detector as a function of codes (one over code and mesh decodes the vertices its features read)."""
+        return DetectorOnCodes(self.detector, self.space)
+
     @property
     def dim(self) -> int:
         """D, the latent code size."""

@@ -211,7 +211,7 @@ class DetectorOnCodes(nn.Module):
         return DetectorOnCodes(copy.deepcopy(self.detector, memo), self.space)
 
     def forward(self, z_all: torch.Tensor):
-        if self.detector.geometry is None:
+        if getattr(self.detector, "geometry", None) is None:  # (any module of codes alone passes through)
             return self.detector(z_all)
         return self.detector(z_all, geometry_of_codes(self.detector.geometry, self.space, z_all))
 
