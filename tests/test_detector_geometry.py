@@ -280,3 +280,48 @@ def test_fnr_threshold_misses_at_most_the_target_and_the_shift_moves_the_decisio
     before = det(z).logit.detach()
     det.shift_decision(0.7)
     torch.testing.assert_close(det(z).logit.detach(), before - 0.7)
+
+
+@pytest.mark.parametrize("where", ["realistic", "calibration"])
+def test_operating_point_is_set_on_its_rows_and_folded_into_the_bias(tmp_path, where, monkeypatch):
+    """detector.operating_fnr on the realistic validation rows of D_c (their stored features) or on the calibration
+    set (codes, decoded): the threshold misses at most the target there, it moves into the output bias, and the last
+    round's test metrics become those at it (the old ones under at_logit_0)."""
+    from neuralcol.errors import UserInputError
+    from neuralcol.samples.store import CollisionRows, CollisionStore, Origin
+    from neuralcol.stages import cascade
+    from neuralcol.stages.detector import operating_point
+
+    torch.manual_seed(2)
+    rng = np.random.default_rng(2)
+    space = _strip_space()
+    det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry()).eval()
+    n = 200
+    z = rng.uniform(-1, 1, (n, 2)).astype(np.float32)
+    feats = geometry_of_codes(det.geometry, space, torch.as_tensor(z)).float().numpy()
+    with torch.no_grad():
+        score = det(torch.as_tensor(z), torch.as_tensor(feats)).logit.numpy()
+    collides = score + rng.normal(scale=0.05, size=n) > np.median(score)  # labels the detector mostly agrees with
+    pd = np.where(collides, 0.1, -0.1)
+    rows = CollisionRows(z, pd, np.stack([pd, pd], 1), collides, np.where(collides, 0, 1).astype(np.int8),
+                         np.zeros(n, np.int16), np.full(n, Origin.REALISTIC, np.int8), np.arange(n), feats)
+    store = CollisionStore(tmp_path / "dc.h5", 2, 2, n_pairs=det.geometry.n_pairs)
+    store.append(z, pd, rows.pd_sub, collides, rows.subset, 0, Origin.REALISTIC, feats)
+    monkeypatch.setattr(cascade, "calibration_set", lambda *a: (rows, 0.0, 0))
+    last = {"accuracy": 0.5, "fnr": 0.5}
+    cfg = {"operating_fnr": 0.1, "operating_set": where}
+    before = det(torch.as_tensor(z), torch.as_tensor(feats)).logit.detach()
+    op = operating_point(det, space, None, cfg, "key", tmp_path, rows, last, store)
+    assert op["operating_set"] == where and op["calibration"]["fnr"] <= 0.1
+    n_cal = int(store.split_mask().sum()) if where == "realistic" else n
+    assert op["calibration"]["n"] == n_cal
+    torch.testing.assert_close(det(torch.as_tensor(z), torch.as_tensor(feats)).logit.detach(),
+                               before - op["threshold"])
+    assert last["at_logit_0"] == {"accuracy": 0.5, "fnr": 0.5} and last["threshold"] == op["threshold"]
+    assert last["fnr"] == pytest.approx(float(np.mean(before.numpy()[collides] <= op["threshold"])))
+    if where == "realistic":
+        plain = CollisionStore(tmp_path / "plain.h5", 2, 2)
+        with pytest.raises(UserInputError, match="operating_set=realistic needs"):
+            operating_point(det, space, None, cfg, "key", tmp_path, rows, {}, plain)
+        plain.close()
+    store.close()

@@ -31,7 +31,7 @@ from neuralcol.rundir import RunDir
 from neuralcol.samples.cache import label_failures, samples_cache_dir, shared_test_set
 from neuralcol.samples.datamodule import CollisionDataModule
 from neuralcol.samples.oracle import LatentOracle
-from neuralcol.samples.store import CollisionRows, Origin
+from neuralcol.samples.store import CollisionRows, CollisionStore, Origin
 from neuralcol.stages.geometry import (
     RealisticRows,
     choose_run_geometry,
@@ -112,27 +112,51 @@ def inference_us(net: CollisionDetector, z: np.ndarray, batch_sizes=(1, 4096), r
 
 
 def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: dict, latent_key: str,
-                    cache_dir: str | Path, test: CollisionRows, last_round: dict) -> dict | None:
+                    cache_dir: str | Path, test: CollisionRows, last_round: dict,
+                    store: CollisionStore | None = None) -> dict | None:
     """Set the final detector's decision threshold (``detector.operating_fnr``; None: the paper's p > 0.5).
 
-    On the cascade's calibration set (uniform codes of U(Z), labeled once and cached, apart from the test set and
-    D_c) the largest logit threshold whose FNR is at most ``operating_fnr`` is found
-    (:func:`~neuralcol.metrics.detection.fnr_threshold`) and folded into MLP_c's output bias, so every user of the
-    detector (handler, cascade, ``detect``) decides at it. The last round's test metrics become those at the
-    threshold; the ones at logit 0 stay under ``at_logit_0``.
+    On the labeled rows of ``detector.operating_set`` the largest logit threshold whose FNR is at most
+    ``operating_fnr`` is found (:func:`~neuralcol.metrics.detection.fnr_threshold`) and folded into MLP_c's output
+    bias, so every user of the detector (handler, cascade, ``detect``) decides at it:
+
+    * ``calibration`` (default): the cascade's calibration set, uniform codes of U(Z) labeled once and cached, apart
+      from the test set and D_c;
+    * ``realistic``: the realistic training meshes among D_c's validation rows (never trained on; a detector over
+      code and mesh with ``geometry.realistic_rows``), judged by their own geometry: real meshes' operating point.
+
+    The last round's test metrics become those at the threshold; the ones at logit 0 stay under ``at_logit_0``.
 
     Returns:
-        ``{"operating_fnr", "threshold", "calibration": {n, fnr, fpr, accuracy at the threshold}}`` or None.
+        ``{"operating_fnr", "operating_set", "threshold", "calibration": {n, fnr, fpr, accuracy at the threshold}}``
+        or None.
     """
     target = det.get("operating_fnr")
     if target is None:
         return None
-    from neuralcol.stages.cascade import calibration_set
-
-    calib, _, _ = calibration_set(oracle, det, latent_key, cache_dir)
     on_codes = DetectorOnCodes(net, space)
-    y = np.asarray(calib.collides, bool)
-    logit = predict_test_set(on_codes, calib)["logit"]
+    where = str(det.get("operating_set", "calibration"))
+    if where == "realistic":
+        rows = store.read() if store is not None else None
+        pick = None if rows is None else (rows.origin == Origin.REALISTIC) & store.split_mask()
+        if rows is None or rows.geometry is None or not pick.any():
+            raise UserInputError("detector.operating_set=realistic needs realistic training meshes among D_c's rows "
+                                 "(detector.inputs=code_and_mesh with detector.geometry.realistic_rows=true); use "
+                                 "detector.operating_set=calibration")
+        y = np.asarray(rows.collides[pick], bool)
+        with torch.no_grad():
+            was = net.training
+            net.eval()
+            logit = net(torch.as_tensor(rows.z[pick]), torch.as_tensor(rows.geometry[pick])).logit.numpy()
+            net.train(was)
+    elif where == "calibration":
+        from neuralcol.stages.cascade import calibration_set
+
+        calib, _, _ = calibration_set(oracle, det, latent_key, cache_dir)
+        y = np.asarray(calib.collides, bool)
+        logit = predict_test_set(on_codes, calib)["logit"]
+    else:
+        raise UserInputError(f"detector.operating_set={where!r}; use calibration or realistic")
     t = fnr_threshold(logit, y, float(target))
     net.shift_decision(t)
     keys = ("accuracy", "fnr", "fpr", "balanced_accuracy", "base_rate", "majority_accuracy")
@@ -142,7 +166,7 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
     last_round["at_logit_0"] = at0
     last_round["threshold"] = t
     cal = detection_metrics(logit > t, y)
-    return {"operating_fnr": float(target), "threshold": t,
+    return {"operating_fnr": float(target), "operating_set": where, "threshold": t,
             "calibration": {"n": int(len(y)), **{k: cal[k] for k in ("accuracy", "fnr", "fpr")}}}
 
 
@@ -263,7 +287,8 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     with numpy_values_allowed():  # Lightning reads the checkpoint as read_torch_file does, never unpickling code
         trainer.fit(module, datamodule=dm, ckpt_path=str(ckpt) if resuming else None, weights_only=True)
     final = module.net.cpu()
-    operating = operating_point(final, space, oracle, det, latent_key, cache_dir, test, rounds_cb.rounds[-1])
+    operating = operating_point(final, space, oracle, det, latent_key, cache_dir, test, rounds_cb.rounds[-1],
+                                dm.store)
     save_detector(rd.detector, final, det, method, pd_unit)
     preds = rd.test_predictions
     on_codes = DetectorOnCodes(final, space)  # (the detector itself for one that reads codes only)
