@@ -123,7 +123,8 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
     * ``calibration`` (default): the cascade's calibration set, uniform codes of U(Z) labeled once and cached, apart
       from the test set and D_c;
     * ``realistic``: the realistic training meshes among D_c's validation rows (never trained on; a detector over
-      code and mesh with ``geometry.realistic_rows``), judged by their own geometry: real meshes' operating point.
+      code and mesh with ``geometry.realistic_rows``), judged by their own geometry: real meshes' operating point;
+    * ``auto``: ``realistic`` where D_c holds such rows, else ``calibration``.
 
     The last round's test metrics become those at the threshold; the ones at logit 0 stay under ``at_logit_0``.
 
@@ -136,9 +137,11 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
         return None
     on_codes = DetectorOnCodes(net, space)
     where = str(det.get("operating_set", "calibration"))
+    rows = store.read() if store is not None and where in ("realistic", "auto") else None
+    pick = None if rows is None else (rows.origin == Origin.REALISTIC) & store.split_mask()
+    if where == "auto":  # the realistic rows where there are (a detector over code and mesh), else the calibration set
+        where = "realistic" if rows is not None and rows.geometry is not None and pick.any() else "calibration"
     if where == "realistic":
-        rows = store.read() if store is not None else None
-        pick = None if rows is None else (rows.origin == Origin.REALISTIC) & store.split_mask()
         if rows is None or rows.geometry is None or not pick.any():
             raise UserInputError("detector.operating_set=realistic needs realistic training meshes among D_c's rows "
                                  "(detector.inputs=code_and_mesh with detector.geometry.realistic_rows=true); use "
@@ -156,7 +159,7 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
         y = np.asarray(calib.collides, bool)
         logit = predict_test_set(on_codes, calib)["logit"]
     else:
-        raise UserInputError(f"detector.operating_set={where!r}; use calibration or realistic")
+        raise UserInputError(f"detector.operating_set={where!r}; use auto, calibration or realistic")
     t = fnr_threshold(logit, y, float(target))
     net.shift_decision(t)
     keys = ("accuracy", "fnr", "fpr", "balanced_accuracy", "base_rate", "majority_accuracy")

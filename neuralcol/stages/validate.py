@@ -56,7 +56,8 @@ def config_problems(cfg: DictConfig) -> list[str]:
     if _get(cfg, "detector.operating_fnr") is not None:
         need("detector.operating_fnr", lambda v: 0 <= float(v) < 1, "must lie in [0, 1) (null: the paper's p > 0.5)")
     if _get(cfg, "detector.operating_set") is not None:
-        need("detector.operating_set", lambda v: v in ("calibration", "realistic"), "use calibration or realistic")
+        need("detector.operating_set", lambda v: v in ("auto", "calibration", "realistic"),
+             "use auto, calibration or realistic")
         if _get(cfg, "detector.operating_set") == "realistic" and _get(cfg, "detector.operating_fnr") is not None \
                 and _get(cfg, "detector.inputs") != "code_and_mesh":
             problems.append("detector.operating_set='realistic': needs detector.inputs=code_and_mesh (the realistic "
