@@ -55,11 +55,17 @@ def test_latent_space_of_each_preset(overrides, kind):
     assert not _compose([*overrides, "detector=tiny"]).box_fit.enabled
 
 
-def test_scape_cpu_preset_labels_38000_samples():
-    # stop 25's registered sweep (docs/results.md): 8 000 + 5 x 6 000 met the FNR bar where 28 000 did not
-    cpu = _compose(["dataset=scape"]).dataset.cpu
-    assert cpu.n_init + cpu.max_rounds * cpu.n_aug == 38000
-    assert (cpu.n_init, cpu.n_aug, cpu.max_rounds, cpu.test_size) == (8000, 6000, 5, 20000)
+def test_scape_cpu_preset_labels_26000_samples_with_the_detector_over_code_and_mesh():
+    # issue 41, rule v3 (docs/results.md): the detector over code and mesh at 8 000 + 3 x 6 000 labels is past the
+    # latent detector's 38 000 (stop 25's sweep) and fits the 30 minutes
+    cfg = _compose(["experiment=cpu_scape"])
+    cpu = cfg.dataset.cpu
+    assert cpu.n_init + cpu.max_rounds * cpu.n_aug == 26000
+    assert (cpu.n_init, cpu.n_aug, cpu.max_rounds, cpu.test_size) == (8000, 6000, 3, 20000)
+    assert (cfg.detector.inputs, cfg.detector.operating_fnr, cfg.detector.operating_set) == ("code_and_mesh", 0.1,
+                                                                                             "auto")
+    tiny = _compose(["experiment=cpu_scape", "detector=tiny"]).detector  # tests: the paper's detector
+    assert (tiny.inputs, tiny.operating_fnr) == ("latent", None)
 
 
 def test_anny_body_picks_the_large_mesh_presets_and_the_command_line_still_wins():
