@@ -74,7 +74,7 @@ def test_code_and_mesh_run_stores_features_resumes_and_judges_meshes(tmp_path, s
         on_mesh = trained.detect(v.double())
         on_code = trained.detect(trained.encode(v.double()))
         with torch.no_grad():
-            want = net(trained.encode(v.double()), net.geometry_of_meshes(v.double())).logit
+            want = net(trained.encode(v.double()), net.geometry_of_meshes(v.float())).logit
         torch.testing.assert_close(on_mesh.logit, want, rtol=1e-4, atol=1e-4)
         assert on_code.logit.shape == (1,)
     # the operating point: the threshold with FNR <= 0.1 on the calibration set, folded into the output bias

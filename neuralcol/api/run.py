@@ -222,7 +222,7 @@ class TrainedRun(CascadeMixin, ResolveMixin):
             for start in range(0, len(z), batch_size):
                 zb = z[start:start + batch_size]
                 out = net(zb) if v is None else \
-                    self.detector(zb, self.detector.geometry_of_meshes(v[start:start + len(zb)]))
+                    self.detector(zb, self.detector.geometry_of_meshes(v[start:start + len(zb)].float()))
                 parts.append(Detection(out.prob, out.logit, smooth_max(out.s, self.temperature) * self.pd_unit,
                                        out.s * self.pd_unit))
         if not parts:
