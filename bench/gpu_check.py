@@ -262,13 +262,13 @@ def step_warp_labeler(plan: Plan, paths: Paths) -> StepOutput:
 def e2e_overrides(plan: Plan, paths: Paths) -> list[str]:
     """The ``experiments.run`` command line of the short end-to-end run: SCAPE, the default method (active), the
     plan's sizes, every training on ``plan.accelerator`` and the Warp labeler on ``plan.warp_device``. The stages
-    that run on the CPU only (mesh-reading detector, speed/accuracy table) and the realistic set are left out."""
+    that run on the CPU only (speed/accuracy table) and the realistic set are left out."""
     level1, level2 = plan.ae_epochs
     return ["dataset=scape", "autoencoder=tiny", "detector=tiny", *plan.labeling,
             f"autoencoder.accelerator={plan.accelerator}", f"detector.accelerator={plan.accelerator}",
             f"autoencoder.level1.epochs={level1}", f"autoencoder.level2.epochs={level2}",
             *(f"detector.{k}={v}" for k, v in plan.detector.items()),
-            f"handler.n_inputs={plan.handler_inputs}", "realistic.enabled=false", "mesh_detector.enabled=false",
+            f"handler.n_inputs={plan.handler_inputs}", "realistic.enabled=false",
             "speed_accuracy.enabled=false", "n_example_meshes=0", "resume=false",
             f"paths.data_dir={paths.data_dir}", f"paths.cache_dir={paths.cache_dir}",
             f"hydra.run.dir={paths.run_dir}"]

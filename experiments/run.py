@@ -44,7 +44,6 @@ from neuralcol.stages.data import acap_round_trip, dataset_labels
 from neuralcol.stages.detector import inference_us, train_detector
 from neuralcol.stages.geometry import detector_inputs, realistic_rows
 from neuralcol.stages.handler import evaluate_handler, export_handling
-from neuralcol.stages.mesh_detector import mesh_detector_stage
 from neuralcol.stages.model_size import search_model_size, validate_model_size
 from neuralcol.stages.realistic import evaluate_realistic, realistic_set
 from neuralcol.stages.speed import measure_speed_accuracy, speed_accuracy_table
@@ -141,8 +140,8 @@ def stage_detector(s: RunState) -> None:
     real_rows = None
     if detector_inputs(cfg.detector) == "code_and_mesh" and cfg.detector.geometry.realistic_rows:
         real_rows = realistic_rows(s.space, s.ds.vertices.numpy(), s.feats.features.numpy(), s.feats.acap,
-                                   s.ae_report["train_index"], s.pool, cfg.mesh_detector.train_set, s.samples_dir,
-                                   float(s.sample_labeler.eps))
+                                   s.ae_report["train_index"], s.pool, cfg.detector.geometry.train_set,
+                                   s.samples_dir, float(s.sample_labeler.eps))
     s.det = train_detector(s.space, s.oracle, cfg.detector, cfg.method, s.ae_report["cache_key"], int(cfg.seed),
                            cfg.paths.cache_dir, s.run_dir, s.logger,
                            round_eval=handling if cfg.handler.eval_every_round and len(s.z_user) else None,
@@ -167,15 +166,6 @@ def stage_handler(s: RunState) -> None:
             list(cfg.handler.verify_margins), certify=s.bands if cfg.detector.cascade.get("handler") else None)
 
 
-def stage_mesh_detector(s: RunState) -> None:
-    """The separate detector that reads the mesh (issue 27; not beside the detector over code and mesh)."""
-    if s.cfg.mesh_detector.enabled and detector_inputs(s.cfg.detector) != "code_and_mesh":
-        s.mesh_net, s.metrics["mesh_detector"] = mesh_detector_stage(
-            s.space, s.ds.vertices.numpy(), s.feats.features.numpy(), s.feats.acap, s.ae_report["train_index"],
-            s.pool, s.cfg.mesh_detector, s.samples_dir, float(s.sample_labeler.eps), s.rd.dc, int(s.cfg.seed),
-            s.run_dir, test=s.test, logger=stage_logger(s.run_dir, "mesh_detector"))
-
-
 def stage_realistic(s: RunState) -> None:
     """The realistic set (issue 27): meshes nobody trained on, labeled exactly, judged beside U(Z)."""
     cfg = s.cfg
@@ -187,8 +177,8 @@ def stage_realistic(s: RunState) -> None:
         cfg.realistic, s.samples_dir, float(s.sample_labeler.eps))
     m, s.real_arrays = evaluate_realistic(
         s.space, s.detector(), meshes, pd_real, s.pool, float(s.sample_labeler.eps), cfg.realistic, s.settings,
-        list(cfg.handler.verify_margins), int(cfg.handler.batch_size), mesh_net=s.mesh_net,
-        repair=repair_from_config(cfg), references=s.ref_spaces)
+        list(cfg.handler.verify_margins), int(cfg.handler.batch_size), repair=repair_from_config(cfg),
+        references=s.ref_spaces)
     m.update({"from_cache": real_cached, "stage_seconds": time.perf_counter() - t_r})
     np.savez_compressed(s.rd.realistic_predictions, **s.real_arrays)
     log_realistic(s.logger, m, s.det["rounds"][-1]["dataset_size"])
@@ -250,8 +240,7 @@ def stage_speed(s: RunState) -> None:
     sa_cfg, cfg = s.cfg.get("speed_accuracy"), s.cfg
     if sa_cfg is None or not sa_cfg.enabled:
         return
-    sa = measure_speed_accuracy(s.space, s.detector(), s.test, sa_cfg, cfg.labeling, s.metrics, s.mesh_net,
-                                s.run_dir)
+    sa = measure_speed_accuracy(s.space, s.detector(), s.test, sa_cfg, cfg.labeling, s.metrics, s.run_dir)
     s.metrics["speed_accuracy"] = sa
     plot_speed_accuracy(sa["points"], s.rd.speed_accuracy_png, f"{cfg.dataset.name}, {cfg.method.name}, seed "
                         f"{cfg.seed}: speed against accuracy (torch threads: {sa['threads']})")
@@ -259,8 +248,7 @@ def stage_speed(s: RunState) -> None:
 
 # the pipeline, in order; each stage reads what the earlier ones left in the RunState and adds its own
 STAGES = (stage_data, stage_latent, stage_open_pool, stage_detector, stage_calibration, stage_handler,
-          stage_mesh_detector, stage_realistic, stage_cascade, stage_close_pool, stage_exports, stage_summary,
-          stage_speed)
+          stage_realistic, stage_cascade, stage_close_pool, stage_exports, stage_summary, stage_speed)
 
 
 def run(cfg: DictConfig, run_dir: Path) -> dict:
@@ -270,15 +258,15 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     pin_threads(cfg.get("threads", 1))  # before any work: the numbers must not depend on the core count
     seed_everything(cfg.seed if cfg.seed is not None else None)
     ctx = RunContext(cfg, run_dir)
-    metrics = {"handling": None, "mesh_detector": None, "realistic": None, "cascade": None}
+    metrics = {"handling": None, "realistic": None, "cascade": None}
     s = RunState(cfg=cfg, run_dir=run_dir, ctx=ctx, rd=ctx.run_dir, metrics=metrics, size_doc=None, net=None,
-                 mesh_net=None, bands=None, calib_collides=None, real_arrays=None, handling_arrays=None,
+                 bands=None, calib_collides=None, real_arrays=None, handling_arrays=None,
                  pool=None, logger=None)
     with contextlib.ExitStack() as s.pool_stack:
         for stage in STAGES:
             stage(s)
     order = ("dataset", "acap", "dataset_labels", "autoencoder", "latent", "detector", "rounds", "handling",
-             "mesh_detector", "realistic", "cascade", "model_size", "speed_accuracy")
+             "realistic", "cascade", "model_size", "speed_accuracy")
     metrics = {k: s.metrics[k] for k in order if k in s.metrics}
     log_latent(run_dir, metrics)
     s.rd.metrics.write_text(json.dumps(metrics, indent=2))
@@ -326,7 +314,6 @@ def log_latent(run_dir: Path, metrics: dict) -> None:
 def log_realistic(logger, m: dict, step: int) -> None:
     """TensorBoard scalars of the realistic set under ``realistic/`` (at the final |D_c|)."""
     scalars = {f"realistic/{k}": m["detection"].get(k) for k in ("accuracy", "fnr", "fpr", "skill")}
-    scalars.update({f"realistic/mesh_{k}": m.get("detection_mesh", {}).get(k) for k in ("accuracy", "fnr", "skill")})
     scalars["realistic/round_trip_agreement"] = m["round_trip"]["agreement"]
     scalars["realistic/out_of_box"] = m["round_trip"]["out_of_box"]
     h = m.get("handling")
@@ -349,10 +336,6 @@ def print_realistic(r: dict | None) -> None:
     if d.get("n"):
         print(f"  detector: accuracy {d['accuracy']:.4f}, FNR {d['fnr']:.4f}, FPR {d['fpr']:.4f}, skill "
               f"{d['skill']:.3f} (majority {d['majority_accuracy']:.4f})")
-    dm = r.get("detection_mesh")
-    if dm and dm.get("n"):
-        print(f"  mesh detector: accuracy {dm['accuracy']:.4f}, FNR {dm['fnr']:.4f}, FPR {dm['fpr']:.4f}, skill "
-              f"{dm['skill']:.3f}")
     agree = "n/a" if rt["agreement"] is None else f"{rt['agreement']:.1%}"
     oob = "n/a" if rt["out_of_box"] is None else f"{rt['out_of_box']:.1%}"
     print(f"  round trip keeps the exact label of {agree}; codes outside the box {oob}")
@@ -450,12 +433,6 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
                   f"resolved {c['resolved_rate']:.1%}; {c['exact_calls']} exact labels of {c['decisions']} decisions "
                   f"({c['exact_share']:.1%}; full verification {c['exact_calls_verified']}); "
                   f"{c['trusted_free_colliding']} trusted free but colliding")
-    md = metrics.get("mesh_detector")
-    if md:
-        t = md["test"]
-        print(f"mesh detector ({md['n_pairs']} contact pairs, {md['n_rows']} rows: D_c decoded + "
-              f"{md['n_realistic']} realistic training meshes, {md['seconds']:.0f} s): U(Z) accuracy "
-              f"{t['accuracy']:.4f}, FNR {t['fnr']:.4f}, FPR {t['fpr']:.4f}")
     print_realistic(metrics.get("realistic"))
     for line in cascade_table(metrics.get("cascade")):
         print(line)

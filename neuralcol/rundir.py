@@ -8,7 +8,7 @@ Run directory (one run)::
 
     .hydra/config.yaml          the composed config (Hydra)
     metrics.json                every stage's results; written last, so its presence marks a finished run
-    detector.pt                 the final latent detector         mesh_detector.pt   the detector that reads meshes
+    detector.pt                 the final detector (runs before issue 41 may hold a mesh_detector.pt: not read)
     detector_rounds.json        round records (rewritten each round; ``finished`` when done)
     dc.h5                       D_c, the labeled training samples  checkpoints/detector.ckpt  resume state
     geometry.npz                the contact pairs of a detector over code and mesh (detector.inputs=code_and_mesh)
@@ -47,7 +47,6 @@ class RunDir:
     metrics = _File("metrics.json")  # written last: marks a finished run (neuralcol.utils.resume)
     resumed_in = _File("resumed_in.txt")  # an interrupted run that was continued elsewhere names that directory
     detector = _File("detector.pt")
-    mesh_detector = _File("mesh_detector.pt")
     detector_rounds = _File("detector_rounds.json")
     dc = _File("dc.h5")
     geometry = _File("geometry.npz")  # the contact pairs a detector over code and mesh reads (issue 41)

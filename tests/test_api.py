@@ -29,7 +29,7 @@ def run_dir(tmp_path_factory) -> Path:
         cfg = compose(config_name="config", overrides=[
             "dataset=proc_hand", "dataset.source.n_poses=24", f"paths.cache_dir={tmp}/cache", "n_example_meshes=0",
             "autoencoder=tiny", "detector=tiny", "realistic=tiny", "speed_accuracy.enabled=false",
-            "mesh_detector=tiny", "handler.n_inputs=0", "labeling.pool.workers=0",
+            "handler.n_inputs=0", "labeling.pool.workers=0",
             "labeling.pool.progress=false"])
     run(cfg, tmp / "run")
     (tmp / "run" / ".hydra").mkdir()
@@ -80,26 +80,37 @@ def test_detect_encode_decode_label(trained):
     np.testing.assert_array_equal(labels.pd, [ref.label(v).pd for v in verts.double().numpy()])
 
 
-def test_detect_reads_the_mesh(trained):
-    """inputs='mesh' (or 'auto' on meshes) judges a mesh with the detector that reads it; the default and codes
-    under 'auto' use the latent detector; pd always comes from the latent detector."""
-    from neuralcol.nn.mesh_detector import mesh_logits
-
-    assert trained.mesh_detector is not None
-    z = _codes(trained, 5, 2)
+def test_the_separate_mesh_detector_options_say_it_was_folded(trained):
+    """Issue 41 folded the separate mesh detector into the run's one detector: an old caller's inputs='mesh' /
+    'auto' and constraint='mesh' get one line saying so and how to train it; 'latent' (what they always meant by
+    default) still works."""
+    z = _codes(trained, 3, 2)
     verts = trained.decode(z)
-    auto = trained.detect(verts, inputs="auto")
-    torch.testing.assert_close(trained.detect(verts, inputs="mesh").logit, auto.logit)
-    np.testing.assert_allclose(auto.logit.numpy(), mesh_logits(trained.mesh_detector, verts.double().numpy()),
-                               atol=1e-5)
-    latent = trained.detect(verts)  # the default: the latent detector (the registered rule, docs/real_meshes.md)
-    torch.testing.assert_close(latent.logit, trained.detector(trained.encode(verts)).logit)
-    torch.testing.assert_close(auto.pd, latent.pd)
-    torch.testing.assert_close(trained.detect(z, inputs="auto").logit, trained.detector(z).logit)  # codes: latent
-    decoded = trained.detect(z, inputs="mesh")
-    torch.testing.assert_close(decoded.logit, auto.logit, atol=1e-4, rtol=0)
-    with pytest.raises(UserInputError, match="inputs='pixels'"):
+    folded = r"the separate mesh detector \(mesh_detector.pt\) was folded into the run's detector in issue 41: " \
+             r"train with detector.inputs=code_and_mesh \(the default\)"
+    for inputs in ("mesh", "auto"):
+        with pytest.raises(UserInputError, match=f"inputs='{inputs}': {folded}") as e:
+            trained.detect(verts, inputs=inputs)
+        assert "\n" not in str(e.value)
+    with pytest.raises(UserInputError, match=f"constraint='mesh': {folded}"):
+        trained.resolve(verts[:1], verify=False, constraint="mesh")
+    torch.testing.assert_close(trained.detect(verts, inputs="latent").logit, trained.detect(verts).logit)
+    with pytest.raises(UserInputError, match="inputs='pixels': the option was removed in issue 41"):
         trained.detect(z, inputs="pixels")
+
+
+def test_a_stray_mesh_detector_file_is_ignored(run_dir, trained, tmp_path):
+    """A run directory from before issue 41 may still hold mesh_detector.pt: load_run never reads it (here it is
+    not even a torch file) and the run answers as without it."""
+    import neuralcol
+
+    old = tmp_path / "old_run"
+    shutil.copytree(run_dir, old)
+    (old / "mesh_detector.pt").write_bytes(b"not a torch file")
+    z = _codes(trained, 4, 5)
+    with neuralcol.load_run(old) as again:
+        assert not hasattr(again, "mesh_detector")
+        torch.testing.assert_close(again.detect(z).logit, trained.detect(z).logit)
 
 
 def test_detect_fast_forms(trained):
@@ -146,15 +157,6 @@ def test_resolve_latent_and_cartesian(trained):
     assert torch.equal(res.vertices[same], verts[same].double())  # a code the handler left alone: the input, unchanged
     # detector-guided: the handler lowers the detector's logit (this tiny detector cannot reach -margin)
     assert (trained.detect(res.codes[keep]).logit < trained.detect(res.codes_before[keep]).logit).all()
-    # the mesh detector as the constraint, on the mesh that would be returned (through the decoder)
-    from neuralcol.nn.mesh_detector import mesh_logits
-
-    by_mesh = trained.resolve(verts[:2], verify=False, constraint="mesh")
-    moved = ~(by_mesh.codes == by_mesh.codes_before).all(-1)
-    before = mesh_logits(trained.mesh_detector, verts[:2].double().numpy())
-    after = mesh_logits(trained.mesh_detector, by_mesh.vertices.numpy())
-    assert (after[moved.numpy()] < before[moved.numpy()]).all()  # it lowers the mesh detector's logit
-    assert (before[~moved.numpy()] <= -2.9).all()  # what it leaves alone, the mesh detector calls free (margin 3)
     codes_only = trained.resolve(res.codes_before, verify=False)
     assert np.isnan(codes_only.pd_input).all() and (codes_only.margin == 3.0).all()
     cart = trained.resolve(verts[:1], objective="cartesian", verify=False, subset=[0, 1, 2])

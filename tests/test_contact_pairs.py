@@ -1,5 +1,5 @@
-"""Contact-pair features and the mesh-reading detector (issue 27): analytic cases, the pair choice, gradients,
-and the saved detector loading without pickles."""
+"""Contact-pair features (issue 27; what the detector over code and mesh reads since issue 41): analytic cases, hop
+neighbourhoods, gradients. The pair choice per sub-domain: tests/test_part_geometry.py."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 import torch
 import trimesh
 
-from neuralcol.geometry.contact_pairs import ContactFeatures, hop_neighbourhood, select_contact_pairs, vertex_normals
+from neuralcol.geometry.contact_pairs import ContactFeatures, hop_neighbourhood, vertex_normals
 
 
 def two_cubes(gap: float) -> tuple[np.ndarray, np.ndarray]:
@@ -73,61 +73,3 @@ def test_hop_neighbourhood_on_a_strip():
     assert near[0, 2] and not near[0, 3]
     near2 = hop_neighbourhood(f, 10, 2).toarray() > 0
     assert near2[0, 4] and not near2[0, 5]
-
-
-def test_select_pairs_far_on_the_mesh_close_in_the_examples():
-    v, f = two_cubes(0.02)
-    far, _ = two_cubes(2.0)
-    i, j = facing_pair(v)
-    pairs = select_contact_pairs(np.stack([v, far, v]), np.array([True, False, False]), f, radius=0.1, min_hops=1,
-                                 n_pairs=10, colliding_weight=3.0)
-    # the 4 facing corner pairs (the cubes' faces x = 1 and x = 1.02) are the only ones within 0.1
-    assert len(pairs) == 4 and (pairs[:, 0] < 8).all() and (pairs[:, 1] >= 8).all()
-    assert [i, j] in pairs.tolist()
-    d = np.linalg.norm(v[pairs[:, 0]] - v[pairs[:, 1]], axis=1)
-    np.testing.assert_allclose(d, 0.02)
-    none = select_contact_pairs(far[None], np.array([False]), f, radius=0.1, min_hops=1, n_pairs=10)
-    assert none.shape == (0, 2)
-
-
-def test_select_pairs_max_per_vertex_spreads_the_pairs():
-    """Cubes 0.05 apart, radius 1.02: each facing corner of A is within reach of three of B's (0.05 and two at
-    ~1.001): 12 pairs, every facing corner in 3; the cap keeps at most k per vertex, most frequent first."""
-    v, f = two_cubes(0.05)
-    free = select_contact_pairs(v[None], np.array([True]), f, radius=1.02, min_hops=1, n_pairs=100)
-    capped = select_contact_pairs(v[None], np.array([True]), f, radius=1.02, min_hops=1, n_pairs=100,
-                                  max_per_vertex=1)
-    counts = np.bincount(free.ravel(), minlength=len(v))
-    assert counts.max() == 3 and len(free) == 12
-    assert np.bincount(capped.ravel(), minlength=len(v)).max() == 1 and len(capped) == 4
-    assert {tuple(p) for p in capped} <= {tuple(p) for p in free}
-    two = select_contact_pairs(v[None], np.array([True]), f, radius=1.02, min_hops=1, n_pairs=5, max_per_vertex=2)
-    assert len(two) == 5 and np.bincount(two.ravel()).max() <= 2
-    with pytest.raises(ValueError, match="max_per_vertex"):
-        select_contact_pairs(v[None], np.array([True]), f, radius=1.02, min_hops=1, n_pairs=5, max_per_vertex=0)
-
-
-def test_select_pairs_folding_bounds_memory_and_changes_nothing():
-    """Issue 31: the close pairs are folded into running scores every ``fold_at`` pairs (a body mesh has ~10^6 close
-    pairs per example; held all at once they took 20 GB). Any fold size gives the pairs of one fold."""
-    v, f = two_cubes(0.05)
-    rng = np.random.default_rng(0)
-    meshes = v[None] + rng.normal(scale=0.05, size=(12, *v.shape))
-    collides = rng.random(12) < 0.4
-    kw = dict(radius=1.02, min_hops=1, n_pairs=30, colliding_weight=3.0)
-    once = select_contact_pairs(meshes, collides, f, **kw, fold_at=10**9)
-    for fold_at in (1, 7, 50):
-        np.testing.assert_array_equal(select_contact_pairs(meshes, collides, f, **kw, fold_at=fold_at), once)
-    assert 10 < len(once) <= 30
-
-
-def test_mesh_detector_saves_and_loads_without_pickles(tmp_path):
-    from neuralcol.nn.mesh_detector import MeshDetector, load_mesh_detector, mesh_logits, save_mesh_detector
-
-    v, f = two_cubes(0.1)
-    i, j = facing_pair(v)
-    net = MeshDetector(ContactFeatures(np.array([[i, j], [1, 12]]), f, radius=0.1), hidden=8)
-    save_mesh_detector(tmp_path / "m.pt", net)
-    back = load_mesh_detector(tmp_path / "m.pt")
-    meshes = np.stack([two_cubes(g)[0] for g in (0.2, -0.2)])
-    np.testing.assert_allclose(mesh_logits(back, meshes), mesh_logits(net, meshes), atol=1e-6)

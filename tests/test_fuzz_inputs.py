@@ -563,15 +563,13 @@ def test_label_cli_process_reports_broken_files_without_traceback(tmp_path):
 # ---------------------------------------------------------------------------------------------- load_run
 def write_tiny_run(root: Path) -> Path:
     """A finished run directory with an untrained latent space and detector of the octahedron (milliseconds):
-    ``.hydra/config.yaml``, ``metrics.json``, ``detector.pt``, ``mesh_detector.pt`` and the cached
-    ``latent_space.pt``. Returns the run directory."""
+    ``.hydra/config.yaml``, ``metrics.json``, ``detector.pt`` and the cached ``latent_space.pt``. Returns the run
+    directory."""
     from omegaconf import OmegaConf
 
-    from neuralcol.geometry.contact_pairs import ContactFeatures
     from neuralcol.nn.autoencoder import BilevelAutoencoder, Level1Autoencoder
     from neuralcol.nn.detector import detector_for_space, save_detector
     from neuralcol.nn.latent_space import LatentSpace
-    from neuralcol.nn.mesh_detector import MeshDetector, save_mesh_detector
     from neuralcol.nn.normalizer import FeatureNormalizer
     from neuralcol.rundir import CacheDir, RunDir
 
@@ -591,12 +589,11 @@ def write_tiny_run(root: Path) -> Path:
     rd.metrics.write_text(json.dumps({"autoencoder": {"cache_key": "k0"}, "detector": {"pd_unit": 0.01}}))
     save_detector(rd.detector, detector_for_space(space, state_dim=4, hidden=8), {"net": {"state_dim": 4, "hidden": 8}},
                   {"name": "supv"}, 0.01)
-    save_mesh_detector(rd.mesh_detector, MeshDetector(ContactFeatures(np.array([[0, 1], [2, 3]]), f, 0.1), hidden=4))
     return run
 
 
 RUN_FILES = {"config": ".hydra/config.yaml", "metrics": "metrics.json", "detector": "detector.pt",
-             "mesh_detector": "mesh_detector.pt", "latent_space": "../cache/autoencoders/k0/latent_space.pt"}
+             "latent_space": "../cache/autoencoders/k0/latent_space.pt"}
 
 
 @pytest.fixture(scope="module")
@@ -639,7 +636,16 @@ def check_load_run(run: Path, names: tuple[str, ...]) -> None:
 def test_tiny_run_loads(tmp_path, tiny_run_bytes):
     run = tiny_run(tmp_path, tiny_run_bytes, {})
     with neuralcol.load_run(run) as loaded:
-        assert loaded.dim == 2 and loaded.mesh_detector is not None
+        assert loaded.dim == 2
+
+
+@pytest.mark.parametrize("stray", [b"", b"\x80\x04junk", b"PK\x03\x04 not a zip"])
+def test_a_stray_mesh_detector_file_is_never_read(tmp_path, tiny_run_bytes, stray):
+    """Runs before issue 41 may hold mesh_detector.pt (the separate mesh detector, folded into the run's detector):
+    whatever it holds, load_run ignores it."""
+    run = tiny_run(tmp_path, tiny_run_bytes, {})
+    (run / "mesh_detector.pt").write_bytes(stray)
+    check_load_run(run, ())  # (names nothing: any UserInputError fails the case)
 
 
 RUN_CASES = [(key, m, rep) for key in RUN_FILES for m in BYTE_MUTATORS for rep in range(3)]
@@ -698,7 +704,6 @@ RUN_BREAKS = {
         k: torch.full_like(t, float("nan")) if t.is_floating_point() else t
         for k, t in torch.load(io.BytesIO(files["detector"]), weights_only=False)["state"].items()})},
     "detector_pd_unit_text": lambda files: {"detector": _detector_blob(files, pd_unit="big")},
-    "mesh_detector_dict": lambda files: {"mesh_detector": _torch_bytes({"hidden": 4})},
     "latent_space_list": lambda files: {"latent_space": _torch_bytes([1, 2])},
 }
 

@@ -85,7 +85,7 @@ def _cfg(tmp_path, *extra):
         return compose(config_name="config", overrides=[
             "dataset=proc_hand", "dataset.source.n_poses=24", f"paths.cache_dir={tmp_path}/cache",
             "autoencoder=tiny", "detector=tiny",
-            "realistic=tiny", "mesh_detector=tiny", "speed_accuracy=tiny", "labeling.pool.workers=0",
+            "realistic=tiny", "speed_accuracy=tiny", "labeling.pool.workers=0",
             "labeling.pool.progress=false",
             "handler.n_inputs=4", "handler.verify_margins=[]", "n_example_meshes=0", *extra])
 
@@ -104,7 +104,7 @@ def test_auto_search_end_to_end(tmp_path, capsys):
 
     cfg = _cfg(tmp_path, "model_size=auto", "model_size.n_components=[2,4]", "model_size.level2_dim=[0,1]",
                "model_size.width=[0.5,1.0]", "model_size.budget=80", "model_size.recon_tol=0.5",
-               "detector.max_rounds=0", "realistic.enabled=false", "mesh_detector.enabled=false")
+               "detector.max_rounds=0", "realistic.enabled=false")
     metrics = run(cfg, tmp_path / "run")
     doc = json.loads((tmp_path / "run" / "model_size" / "model_size.json").read_text())
     assert len(doc["latent"]) == 4 and len(doc["detector"]) == 2 and doc["budget"] == 80

@@ -22,7 +22,7 @@ def _cfg(scape_dir, tmp_path):
         return compose(config_name="config", overrides=[
             "dataset=scape", "autoencoder=pca", f"paths.data_dir={scape_dir.parent}",
             f"paths.cache_dir={tmp_path}/cache", "n_example_meshes=0", "detector=tiny", "realistic=tiny",
-            "mesh_detector=tiny", "speed_accuracy.enabled=false", "detector.cascade.enabled=false",
+            "speed_accuracy.enabled=false", "detector.cascade.enabled=false",
             "handler.n_inputs=4", "realistic.handler_inputs=0", "detector.inputs=code_and_mesh",
             "detector.operating_fnr=0.1",
             "labeling.pool.workers=0", "labeling.pool.progress=false"])
@@ -53,7 +53,8 @@ def test_code_and_mesh_run_stores_features_resumes_and_judges_meshes(tmp_path, s
     d = metrics["detector"]
     assert d["resumed"] is True and d["inputs"] == "code_and_mesh" and d["n_pairs"] == len(pairs) > 0
     np.testing.assert_array_equal(np.load(run_dir / "geometry.npz")["pairs"], pairs)
-    assert metrics["mesh_detector"] is None, "one detector: the separate mesh detector is not trained beside it"
+    assert "mesh_detector" not in metrics, "one detector: the separate mesh detector is gone (issue 41)"
+    assert not (run_dir / "mesh_detector.pt").exists()
     n_real = d["n_realistic_rows"]
     assert n_real > 0
     assert [r["dataset_size"] for r in metrics["rounds"]] == [120 + n_real, 180 + n_real, 240 + n_real]

@@ -215,7 +215,7 @@ def test_main_run_log_off_a_terminal(tmp_path):
     with open(log, "wb") as f:
         proc = subprocess.run(
             [sys.executable, "-m", "experiments.run", "autoencoder=tiny", "detector=tiny", "realistic=tiny",
-             "mesh_detector=tiny", "speed_accuracy=tiny", "autoencoder.progress_bar=true",
+             "speed_accuracy=tiny", "autoencoder.progress_bar=true",
              "detector.progress_bar=true", f"paths.cache_dir={tmp_path}/cache", f"hydra.run.dir={tmp_path}/run"],
             cwd=ROOT, env=env, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, timeout=900)
     text = log.read_bytes().decode()

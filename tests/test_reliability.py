@@ -34,8 +34,8 @@ def _run(args: list[str], out: Path, cache: Path, fault: str | None = None) -> s
     if fault:
         env["NEURALCOL_FAULT"] = fault
     cmd = [sys.executable, "-m", "experiments.run", "dataset=scape", "autoencoder=tiny", "detector=tiny",
-           # the realistic set and the mesh detector are not compared here (test_run, test_api cover them)
-           "realistic.enabled=false", "mesh_detector.enabled=false", "speed_accuracy.enabled=false",
+           # the realistic set is not compared here (test_run, test_api cover it)
+           "realistic.enabled=false", "speed_accuracy.enabled=false",
            "method=active", "handler.n_inputs=4", "handler.verify_margins=[]", "n_example_meshes=0",
            "labeling.pool.workers=0", "labeling.pool.chunk_size=8", "labeling.pool.progress=false",
            f"paths.data_dir={args[0]}", f"paths.cache_dir={cache}", f"paths.output_dir={out}", *args[1:]]

@@ -25,12 +25,12 @@ from neuralcol.rundir import RunDir
 ROOT = Path(__file__).resolve().parents[1]
 OVERRIDES = ["dataset=proc_hand", "dataset.source.n_poses=50", "autoencoder=tiny", "autoencoder.level1.epochs=40",
              "autoencoder.level2.epochs=40", "detector=tiny", "method=supv", "realistic=tiny",
-             "mesh_detector=tiny", "speed_accuracy.enabled=false", "handler.n_inputs=4", "n_example_meshes=0",
+             "speed_accuracy.enabled=false", "handler.n_inputs=4", "n_example_meshes=0",
              "labeling.pool.workers=0", "labeling.pool.progress=false"]
 
 # the stages after the autoencoder, switched off (the control run needs only its latent space)
 AE_ONLY = ["detector.max_rounds=0", "detector.cascade.enabled=false", "box_check.enabled=false",
-           "realistic.enabled=false", "mesh_detector.enabled=false", "handler.n_inputs=0"]
+           "realistic.enabled=false", "handler.n_inputs=0"]
 
 
 def _run(tmp: Path, name: str, omp: int, *extra: str) -> tuple[RunDir, Path]:

@@ -8,7 +8,6 @@ import sys
 from pathlib import Path
 
 import pytest
-import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -72,14 +71,36 @@ def test_anny_body_picks_the_large_mesh_presets_and_the_command_line_still_wins(
     """Issue 31: a data set's defaults may pick the evaluation stages' presets (conf/config.yaml lists dataset after
     them); anny_body takes the *large_mesh ones and its own calibration size, other data sets keep the defaults."""
     body, scape = _compose(["dataset=anny_body"]), _compose(["dataset=scape"])
-    assert (body.realistic.n_acap_interp, body.mesh_detector.train_set.n_acap_interp, body.speed_accuracy.n_exact,
+    body_train, scape_train = body.detector.geometry.train_set, scape.detector.geometry.train_set
+    assert (body.realistic.n_acap_interp, body_train.n_acap_interp, body.speed_accuracy.n_exact,
             body.detector.cascade.calibration_size) == (340, 340, 100, 500)
-    assert (scape.realistic.n_acap_interp, scape.mesh_detector.train_set.n_acap_interp, scape.speed_accuracy.n_exact,
+    assert (scape.realistic.n_acap_interp, scape_train.n_acap_interp, scape.speed_accuracy.n_exact,
             scape.detector.cascade.calibration_size) == (1500, 1500, 300, 2000)
     assert body.realistic.t_range == scape.realistic.t_range  # the rest of default.yaml is kept
     tiny = _compose(["dataset=anny_body", "realistic=tiny", "realistic.per_class=3"])
     assert (tiny.realistic.n_acap_interp, tiny.realistic.per_class) == (48, 3)
     assert _compose(["experiment=cpu_anny_body"]) == body
+
+
+TRAIN_SET = ("seed", "n_acap_interp", "n_vertex_interp", "n_perturbed", "t_range", "perturb_scale", "clear_eps",
+             "per_class")
+
+
+@pytest.mark.parametrize("overrides, sizes", [
+    ([], (1500, 600, 600, 600)), (["experiment=cpu_scape"], (1500, 600, 600, 600)),
+    (["experiment=cpu_proc_cloth"], (1500, 600, 600, 600)), (["experiment=paper_scape"], (1500, 600, 600, 600)),
+    (["experiment=cpu_anny_body"], (340, 130, 130, 150)), (["experiment=paper_anny_body"], (340, 130, 130, 150)),
+    (["detector=tiny"], (48, 16, 16, 16)), (["dataset=anny_body", "detector=tiny"], (48, 16, 16, 16))])
+def test_realistic_training_meshes_of_the_one_detector(overrides, sizes):
+    """Issue 41: the realistic training meshes moved from mesh_detector.train_set to detector.geometry.train_set with
+    the values of before (anny_body: large_mesh's sizes through dataset.cpu.geometry_train_set; detector=tiny: the
+    old mesh_detector=tiny's), so their cache key (a hash of these values) is unchanged."""
+    ts = OmegaConf.to_container(_compose(overrides).detector.geometry.train_set, resolve=True)
+    assert sorted(ts) == sorted(TRAIN_SET)
+    assert (ts["n_acap_interp"], ts["n_vertex_interp"], ts["n_perturbed"], ts["per_class"]) == sizes
+    assert (ts["seed"], ts["t_range"], ts["perturb_scale"], ts["clear_eps"]) == (1, [-0.6, 1.6], 0.8, 0)
+    assert all(type(ts[k]) is int for k in ("n_acap_interp", "n_vertex_interp", "n_perturbed", "per_class"))
+    assert "mesh_detector" not in _compose(overrides)
 
 
 def test_paper_datasets_present():
@@ -90,8 +111,7 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
     from experiments.run import run
 
     cfg = _compose(["dataset=scape", f"paths.data_dir={scape_dir.parent}", f"paths.cache_dir={tmp_path}/cache",
-                    "n_example_meshes=2", "autoencoder=tiny", "detector=tiny", "realistic=tiny", "mesh_detector=tiny",
-                    "speed_accuracy=tiny",
+                    "n_example_meshes=2", "autoencoder=tiny", "detector=tiny", "realistic=tiny", "speed_accuracy=tiny",
                     "labeling.pool.workers=0",
                     "labeling.pool.progress=false"])
     metrics = run(cfg, tmp_path / "run")
@@ -145,20 +165,13 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
             assert detection_metrics(logit[clear] > 0, pd[clear] > 0)["accuracy"] == r["detection"]["accuracy"]
         if "handled" in f:
             assert (pd[f["handled"]] > 0).all() and len(f["handled"]) == r["handling"]["n"] <= 4
-    # the detector that reads the mesh: trained on the decoded D_c + realistic training meshes, judged on both sets
-    md = saved["mesh_detector"]
-    assert md["n_dc"] == 240 and md["n_rows"] == 240 + md["n_realistic"] and 0 < md["n_pairs"] <= 64
-    assert md["test"]["n"] == 200 and 0 <= md["test"]["accuracy"] <= 1
-    assert r["detection_mesh"]["n"] == r["detection"]["n"]
-    from neuralcol.nn.mesh_detector import load_mesh_detector
-
+    # one detector (issue 41): no separate mesh detector beside it, in the metrics or the run directory
+    assert "mesh_detector" not in saved and "detection_mesh" not in r
+    assert not (tmp_path / "run" / "mesh_detector.pt").exists()
     cached = list((tmp_path / "cache" / "collision").glob("*/realistic_[0-9a-f]*.npz"))
     assert len(cached) == 1, cached  # the evaluation set, cached beside the U(Z) test set
-    with np.load(cached[0]) as c, np.load(tmp_path / "run" / "realistic_predictions.npz") as f:
-        net = load_mesh_detector(tmp_path / "run" / "mesh_detector.pt")  # weights_only: no pickle
-        with torch.no_grad():
-            logits = net(torch.as_tensor(c["vertices"], dtype=torch.float32)).numpy()
-        np.testing.assert_allclose(f["logit_mesh"], logits, atol=1e-4)
+    with np.load(cached[0]) as c:
+        assert len(c["pd"]) == r["n"]
     # the per-run data of the report's cost and failure charts
 
     with np.load(tmp_path / "run" / "test_predictions.npz") as f:
@@ -178,8 +191,8 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
     out = capsys.readouterr().out
     assert "PD result" in out and out.strip().splitlines()[-1].startswith("1 ")
     assert (tmp_path / "handled" / "1_resolved.obj").is_file()
-    again = run(OmegaConf.merge(cfg, {"realistic": {"enabled": False}, "mesh_detector": {"enabled": False},
-                                      "handler": {"n_inputs": 0}}), tmp_path / "run2")
+    again = run(OmegaConf.merge(cfg, {"realistic": {"enabled": False}, "handler": {"n_inputs": 0}}),
+                tmp_path / "run2")
     assert again["autoencoder"]["from_cache"], "the second run reuses the trained autoencoder"
 
 
@@ -192,7 +205,7 @@ def test_scape_autoencoder_cpu_preset(tmp_path, scape_dir):
     from experiments.run import run
 
     cfg = _compose(["dataset=scape_k8l3", f"paths.data_dir={scape_dir.parent}", f"paths.cache_dir={tmp_path}/cache",
-                    "detector=tiny", "realistic=tiny", "mesh_detector=tiny", "autoencoder.progress_bar=false"])
+                    "detector=tiny", "realistic=tiny", "autoencoder.progress_bar=false"])
     m = run(cfg, tmp_path / "run")
     assert m["autoencoder"]["train_mean_vertex_error"] <= 0.01
     assert all(p == 1 for p in m["autoencoder"]["pieces"])
@@ -237,7 +250,7 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     proc = subprocess.run(
         [sys.executable, "-m", "experiments.run", "-m", "dataset=scape", "autoencoder=tiny", "detector=tiny",
          "realistic=tiny", "speed_accuracy=tiny",
-         "mesh_detector=tiny", "method=supv_bd,active", "seed=0,1", "hydra/launcher=parallel", "handler.n_inputs=4",
+         "method=supv_bd,active", "seed=0,1", "hydra/launcher=parallel", "handler.n_inputs=4",
          "handler.eval_every_round=true", "handler.verify_margins=[4.0]", "n_example_meshes=0",
          "labeling.pool.workers=0", "labeling.pool.progress=false", f"paths.data_dir={scape_dir.parent}",
          f"paths.cache_dir={tmp_path}/cache",
@@ -258,7 +271,7 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     text = (sweep / "report.md").read_text()
     assert "Table 3 layout" in text and "equivalent supv_bd size" in text and "detector parameters" in text
     # the "real meshes" block (issue 27): every run of the sweep evaluated the realistic set
-    assert "real meshes: accuracy, latent detector" in text and "real meshes: resolve, collision-free" in text
+    assert "real meshes: accuracy, detector" in text and "real meshes: resolve, collision-free" in text
     rows = list(__import__("csv").DictReader(open(sweep / "table3.csv")))
     assert [r["method"] for r in rows] == ["supv_bd", "active"] and rows[0]["n_seeds"] == "2"
     for chart in ("accuracy.png", "fnr.png", "handling.png", "speed.png", "stability.png", "projection.png",

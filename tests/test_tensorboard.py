@@ -30,13 +30,13 @@ def test_one_tensorboard_run_per_stage(tmp_path):
         cfg = compose(config_name="config", overrides=[
             "dataset=proc_hand", "dataset.source.n_poses=24", f"paths.cache_dir={tmp_path}/cache", "autoencoder=tiny",
             "detector=tiny", "realistic=tiny", "speed_accuracy.enabled=false",
-            "mesh_detector=tiny", "method=supv", "labeling.pool.workers=0", "labeling.pool.progress=false",
+            "method=supv", "labeling.pool.workers=0", "labeling.pool.progress=false",
             "handler.n_inputs=4", "handler.verify_margins=[]", "n_example_meshes=0",
             "detector.tensorboard_examples=2"])
     metrics = run(cfg, tmp_path / "run")
     tb = tmp_path / "run" / "tensorboard"
     assert sorted(p.name for p in tb.iterdir()) == ["autoencoder_level1", "autoencoder_level2", "data",
-                                                     "detector_supv", "handling", "latent", "mesh_detector"]
+                                                     "detector_supv", "handling", "latent"]
     tags, _ = _tags(tb / "autoencoder_level1")
     assert any(t.startswith("train") for t in tags["scalars"]), tags["scalars"]
     tags, acc = _tags(tb / "detector_supv")
@@ -45,11 +45,9 @@ def test_one_tensorboard_run_per_stage(tmp_path):
     assert {"samples/0", "samples/1"} <= set(tags["images"])
     assert [e.step for e in acc.Images("samples/0")] == sizes  # one picture per round
     assert len(list((tmp_path / "run" / "round_examples").glob("*.png"))) == 2 * len(sizes)
-    # the realistic set (issue 27), at the final |D_c|, beside U(Z); the mesh detector's training curves
-    assert {"realistic/accuracy", "realistic/round_trip_agreement", "realistic/mesh_accuracy"} <= set(tags["scalars"])
-    assert [e.step for e in acc.Scalars("realistic/mesh_accuracy")] == sizes[-1:]
-    tags, _ = _tags(tb / "mesh_detector")
-    assert "train/mesh_loss" in tags["scalars"], tags["scalars"]
+    # the realistic set (issue 27), at the final |D_c|, beside U(Z)
+    assert {"realistic/accuracy", "realistic/round_trip_agreement"} <= set(tags["scalars"])
+    assert [e.step for e in acc.Scalars("realistic/accuracy")] == sizes[-1:]
     tags, _ = _tags(tb / "handling")
     assert "handling/success_rate" in tags["scalars"]
     # issue 40: the latent space beside its PCA references; 19 training meshes cannot span |Z_all| = 32, so the

@@ -35,12 +35,11 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 TUTORIAL = ROOT / "docs" / "tutorial.md"
 RUNNABLE, SHOWN = ("bash", "python"), ("text",)
-TINY = ("autoencoder=tiny detector=tiny realistic=tiny mesh_detector=tiny speed_accuracy=tiny "
+TINY = ("autoencoder=tiny detector=tiny realistic=tiny speed_accuracy=tiny "
         "labeling.pool.workers=0 labeling.pool.progress=false "
         "handler.n_inputs=4 "
         "handler.verify_margins=[] n_example_meshes=0 detector.tensorboard_examples=2 autoencoder.box_margin=0.5")
-STAGES = ["autoencoder_level1", "autoencoder_level2", "data", "detector_active", "handling", "latent",
-          "mesh_detector"]
+STAGES = ["autoencoder_level1", "autoencoder_level2", "data", "detector_active", "handling", "latent"]
 FENCE = re.compile(r"^```(\S*)\n(.*?)^```\s*$", re.M | re.S)
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
-from neuralcol.api.results import OBJECTIVES, Resolved
+from neuralcol.api.results import OBJECTIVES, Resolved, check_removed_choice
 from neuralcol.errors import UserInputError
 
 
@@ -26,8 +26,8 @@ class ResolveMixin:
 
 
     def resolve(self, vertices_or_codes, objective: str = "latent", verify: bool = True, margins=None,
-                subset=None, anchor: str = "median", constraint: str = "latent",
-                repair: bool | None = None, certify: float | None = None) -> Resolved:
+                subset=None, anchor: str = "median", repair: bool | None = None, certify: float | None = None, *,
+                constraint: str | None = None) -> Resolved:
         """Resolve self-collisions: meshes come back as the user's meshes, corrected; codes as decoded codes.
 
         The augmented-Lagrangian handler (docs/handler.md) moves each input's latent code to the nearest code
@@ -48,9 +48,6 @@ class ResolveMixin:
             subset: ``objective="cartesian"``: (S,) vertex indices whose positions count (None: all).
             anchor: mesh inputs: ``"median"`` (default) removes the translation the decoder's centroid pinning
                 adds to the correction; ``"none"`` keeps the raw difference of the decoded meshes.
-            constraint: mesh inputs: ``"latent"`` (default: the latent detector's logit on the code) or ``"mesh"``
-                (the detector that reads the mesh, on the mesh that would be returned, differentiated through
-                the decoder; slower, docs/real_meshes.md).
             repair: mesh inputs with ``verify``: a returned mesh the exact labeler still finds self-penetrating
                 after the margins gets the contact repair (its intersecting triangles pushed apart, our addition;
                 docs/real_meshes.md); None: the run's ``handler.repair.enabled``.
@@ -61,6 +58,10 @@ class ResolveMixin:
                 next margin, then, for meshes, the contact repair). ``exact``, ``free`` and ``exact_share`` of the
                 result say which verdicts were exact. The inputs' ``pd_input`` / ``pd_before`` are measured as
                 without it.
+            constraint: removed in issue 41 with the separate mesh detector (folded into the run's detector; the
+                handler's constraint is always the run's detector on the code and, over code and mesh, on its
+                decoded geometry): ``constraint="mesh"`` raises a
+                UserInputError saying so (``"latent"`` is accepted from old callers).
 
         Returns:
             :class:`Resolved`.
@@ -82,18 +83,12 @@ class ResolveMixin:
             raise UserInputError(f"objective={objective!r}; use one of {OBJECTIVES}")
         if anchor not in ANCHORS:
             raise UserInputError(f"anchor={anchor!r}; use one of {ANCHORS}")
-        if constraint not in ("latent", "mesh"):
-            raise UserInputError(f"constraint={constraint!r}; use 'latent' or 'mesh'")
-        if constraint == "mesh" and self.mesh_detector is None:
-            raise UserInputError(f"{self.run_dir}: constraint='mesh' needs the run's mesh_detector.pt")
+        check_removed_choice("constraint", constraint, ("mesh",))
         band = None
         if certify is not None:
             if not verify:
                 raise UserInputError("certify decides which handled results the exact labeler verifies; it needs "
                                      "verify=True")
-            if constraint == "mesh":
-                raise UserInputError("certify: the cascade's bands are calibrated on the latent detector's logits; "
-                                     "use constraint='latent' with certify")
             band = self.band(certify)
         x = vertices_or_codes
         v_user = self._vertices(x) if self._is_vertices(x) else None
@@ -123,9 +118,8 @@ class ResolveMixin:
             if rep is not None:
                 self.label_pool()  # the repair asks the run's labeler in this process
             res = resolve_meshes(self.on_codes, self.space, v_user, self._pd, settings, margins, batch,
-                                 objective=target, anchor=anchor, z_user=z_user,
-                                 mesh_net=self.mesh_detector if constraint == "mesh" else None,
-                                 repair=rep, labeler=self._exact if rep is not None else None, certify=band)
+                                 objective=target, anchor=anchor, z_user=z_user, repair=rep,
+                                 labeler=self._exact if rep is not None else None, certify=band)
             used_margins = np.append(used_margins, np.nan)
             moved = displacement_stats(v_user.numpy(), res.vertices, diag)
             return Resolved(vertices=torch.as_tensor(res.vertices, dtype=torch.float64, device=self.device),

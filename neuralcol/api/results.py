@@ -7,7 +7,24 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from neuralcol.errors import UserInputError
+
 OBJECTIVES = ("latent", "cartesian")
+FOLDED_MESH_DETECTOR = ("the separate mesh detector (mesh_detector.pt) was folded into the run's detector in issue 41: "
+                        "train with detector.inputs=code_and_mesh (the default), whose detector judges a mesh by its "
+                        "own geometry")
+
+
+def check_removed_choice(name: str, value, folded: tuple[str, ...]) -> None:
+    """An old caller's ``inputs=`` / ``constraint=`` (removed in issue 41): None and ``"latent"`` (the run's
+    detector, what they always meant) pass; ``folded`` (the separate mesh detector) raise
+    :data:`FOLDED_MESH_DETECTOR`, anything else that the option is gone."""
+    if value is None or value == "latent":
+        return
+    if value in folded:
+        raise UserInputError(f"{name}={value!r}: {FOLDED_MESH_DETECTOR}")
+    raise UserInputError(f"{name}={value!r}: the option was removed in issue 41 (the run's one detector judges "
+                         "meshes and codes); leave it out")
 
 
 class Detection(NamedTuple):
@@ -17,8 +34,9 @@ class Detection(NamedTuple):
     pd (B,): the detector's PD estimate in mesh units, ``pd_unit * smooth_max(S, temperature)`` (the quantity
     its loss fits to the exact PD; trained on targets clipped to ``detector.loss.pd_clip`` units, so deep
     penetrations saturate). pd_sub (B, K): the per-sub-domain estimates ``pd_unit * S_i``. outside_box (B,) bool:
-    the code (of a mesh: its encoding) lies outside the box Z the latent detector was trained in, so its answer is
-    an extrapolation (``run.detect(mesh, inputs="mesh")`` reads the mesh instead); None where not computed.
+    the code (of a mesh: its encoding) lies outside the box Z the detector was trained in, so its answer is an
+    extrapolation (a detector over code and mesh, ``detector.inputs=code_and_mesh``, reads the mesh's own geometry
+    beside it); None where not computed.
     collides (B,) bool: the verdict: ``logit > 0``, or with ``certify`` the certified cascade's (the network below
     and above the band, the exact label inside it; docs/cascade.md). exact (B,) bool: with ``certify``, the rows
     the exact labeler decided (their ``prob`` is then 1.0 or 0.0, the exact answer); None without ``certify``.

@@ -17,7 +17,7 @@ from neuralcol.api.files import (
     check_run_dir,
 )
 from neuralcol.api.resolve import ResolveMixin
-from neuralcol.api.results import Detection
+from neuralcol.api.results import Detection, check_removed_choice
 from neuralcol.errors import UserInputError
 from neuralcol.nn.detector import CollisionDetector, smooth_max
 from neuralcol.nn.latent_space import LatentSpace
@@ -59,18 +59,14 @@ def load_run(run_dir: str | Path, device: str | torch.device = "cpu", workers: i
     retrain = "restore it from a copy of the run, or run the run's command again in a new directory"
     net, blob = _read_model_file(rd.detector, load_detector, retrain)
     pd_unit = _pd_unit(blob, metrics, rd.detector, rd.metrics)
-    mesh_net = None
-    if rd.mesh_detector.is_file():  # the detector that reads the mesh (issue 27)
-        from neuralcol.nn.mesh_detector import load_mesh_detector
-
-        mesh_net = _read_model_file(rd.mesh_detector, load_mesh_detector, retrain)
+    # (a mesh_detector.pt of a run older than issue 41, the separate mesh detector, is not read)
     space = _read_model_file(space_path, LatentSpace.load, f"delete {space_path.parent} and run the same command "
                              "again to rebuild it")
     if net.latent_dim != space.dim:
         raise UserInputError(f"{rd.detector}: reads latent codes of size {net.latent_dim}, the run's latent space "
                              f"{space_path} has {space.dim}; the files belong to different runs: {retrain}")
     return TrainedRun(run_dir, cfg, metrics, space, net, pd_unit, temperature,
-                      device=device, workers=workers, progress=progress, mesh_detector=mesh_net)
+                      device=device, workers=workers, progress=progress)
 
 
 class TrainedRun(CascadeMixin, ResolveMixin):
@@ -88,12 +84,11 @@ class TrainedRun(CascadeMixin, ResolveMixin):
 
     def __init__(self, run_dir: Path, cfg: DictConfig, metrics: dict, space: LatentSpace,
                  detector: CollisionDetector, pd_unit: float, temperature: float, device="cpu",
-                 workers: int | None = None, progress: bool = False, mesh_detector=None):
+                 workers: int | None = None, progress: bool = False):
         self.run_dir, self.cfg, self.metrics = Path(run_dir), cfg, metrics
         self.device = torch.device(device)
         self.space = space.to(self.device).eval()
         self.detector = detector.to(self.device).eval()
-        self.mesh_detector = None if mesh_detector is None else mesh_detector.to(self.device).eval()
         self.pd_unit, self.temperature = float(pd_unit), float(temperature)
         # the label pool's settings that differ from the run's labeling.pool
         self._pool_cfg = {"progress": bool(progress), **({} if workers is None else {"workers": int(workers)})}
@@ -170,49 +165,34 @@ class TrainedRun(CascadeMixin, ResolveMixin):
             return self.space.decode(self._codes(codes))
 
     def detect(self, vertices_or_codes, batch_size: int = 4096, fast: str | None = None,
-               inputs: str = "latent", certify: float | None = None) -> Detection:
-        """The detector on meshes (B, V, 3) or codes (B, D), in batches of ``batch_size``.
+               certify: float | None = None, *, inputs: str | None = None) -> Detection:
+        """The run's detector (``detector.pt``) on meshes (B, V, 3) or codes (B, D), in batches of ``batch_size``.
 
-        ``inputs``: which detector judges. ``"latent"`` (default): the run's detector (``detector.pt``) on the code (a
-        mesh is encoded first: the paper's detector then judges the autoencoder's round trip, not the mesh; a run
-        whose detector reads code and mesh, ``detector.inputs=code_and_mesh`` (issue 41), reads the given mesh's own
-        contact-pair features beside its code, and a code's decoded ones). ``"mesh"``: the detector that
-        reads the mesh (``mesh_detector.pt``, issue 27; codes are decoded first): on meshes nobody trained on it
-        is far more accurate (proc_hand 0.891 against 0.634, SCAPE 0.815 against 0.637), but on SCAPE's U(Z) it
-        is 1.7 points below the latent detector, so by the rule registered before the deciding runs it is not the
-        default (docs/real_meshes.md). ``"auto"``: the mesh detector for meshes when the run has one, the latent
-        detector otherwise. ``pd`` and ``pd_sub`` always come from the latent detector (the mesh detector
-        estimates no depth).
+        A run whose detector reads code and mesh (``detector.inputs=code_and_mesh``, the default since issue 41)
+        judges a given mesh by its own contact-pair features beside its code, and a code by its decoded mesh's; the
+        paper's detector (``detector.inputs=latent``) reads the code only, so on a mesh it judges the autoencoder's
+        round trip, not the mesh. ``inputs`` is gone with the separate mesh detector (folded into the run's
+        detector in issue 41): ``inputs="mesh"`` or ``"auto"`` raises a UserInputError saying so (``"latent"``, the
+        run's detector, is accepted from old callers).
 
-        ``fast`` (latent detector only): None (the eager float32 network, as in training and in the reported
-        metrics), ``"float32"`` (compiled with torch.compile: the same outputs to round-off, ~1.4x faster at batch
-        4096 on 2 CPU cores), ``"bfloat16"`` (compiled, bfloat16 weights: ~2.3x faster where bfloat16 is native;
-        about 0.1 % of labels flip) or ``"bfloat16_checked"`` (bfloat16, with the rows whose logit lies near 0
-        recomputed in float32: ~1.9x, no label flipped on SCAPE's test sets). The first call with a ``fast``
-        form compiles it (seconds); :class:`~neuralcol.nn.fast_inference.FastDetector` and docs/model_size.md
-        have the measurements.
+        ``fast``: None (the eager float32 network, as in training and in the reported metrics), ``"float32"``
+        (compiled with torch.compile: the same outputs to round-off, ~1.4x faster at batch 4096 on 2 CPU cores),
+        ``"bfloat16"`` (compiled, bfloat16 weights: ~2.3x faster where bfloat16 is native; about 0.1 % of labels
+        flip) or ``"bfloat16_checked"`` (bfloat16, with the rows whose logit lies near 0 recomputed in float32:
+        ~1.9x, no label flipped on SCAPE's test sets). The first call with a ``fast`` form compiles it (seconds);
+        :class:`~neuralcol.nn.fast_inference.FastDetector` and docs/model_size.md have the measurements.
 
-        ``certify`` (latent detector only): None, or a target FNR in [0, 1): the certified cascade (docs/cascade.md).
-        The band ``[lo, hi)`` of that target (:meth:`band`, from the run's calibration set) decides which rows the
-        exact labeler judges: logit below ``lo``: free, at or above ``hi``: colliding (the network), inside: the
-        exact label of the **mesh** (a mesh given here is labeled itself, not its round trip; a code is decoded
-        first), through the run's label pool (:meth:`label_pool`). The verdict is then ``collides``, not
-        ``prob > 0.5``; ``exact`` marks the rows labeled, whose ``prob`` becomes 1.0 or 0.0. A row the exact
-        labeler fails on is called colliding (never certified free) and not marked ``exact``."""
-        if inputs not in ("auto", "mesh", "latent"):
-            raise UserInputError(f"inputs={inputs!r}; use 'auto', 'mesh' or 'latent'")
+        ``certify``: None, or a target FNR in [0, 1): the certified cascade (docs/cascade.md). The band ``[lo, hi)``
+        of that target (:meth:`band`, from the run's calibration set) decides which rows the exact labeler judges:
+        logit below ``lo``: free, at or above ``hi``: colliding (the network), inside: the exact label of the
+        **mesh** (a mesh given here is labeled itself, not its round trip; a code is decoded first), through the
+        run's label pool (:meth:`label_pool`). The verdict is then ``collides``, not ``prob > 0.5``; ``exact`` marks
+        the rows labeled, whose ``prob`` becomes 1.0 or 0.0. A row the exact labeler fails on is called colliding
+        (never certified free) and not marked ``exact``."""
+        check_removed_choice("inputs", inputs, ("mesh", "auto"))
         x = vertices_or_codes
         is_mesh = self._is_vertices(x)
-        if inputs == "mesh" and self.mesh_detector is None:
-            raise UserInputError(f"{self.run_dir}: this run has no mesh_detector.pt (it ran with "
-                                 "mesh_detector.enabled=false or before issue 27); use inputs='latent'")
-        use_mesh = inputs == "mesh" or (inputs == "auto" and is_mesh and self.mesh_detector is not None)
-        band = None
-        if certify is not None:
-            if use_mesh:
-                raise UserInputError("certify: the cascade's bands are calibrated on the latent detector's logits; "
-                                     "use inputs='latent' with certify")
-            band = self.band(certify)
+        band = None if certify is None else self.band(certify)
         z = self.encode(x) if is_mesh else self._codes(x)
         # issue 41: a detector over code and mesh judges a mesh by its own geometry, not by its round trip's
         v = self._vertices(x).to(self.device) if is_mesh and self.detector.geometry is not None else None
@@ -231,13 +211,6 @@ class TrainedRun(CascadeMixin, ResolveMixin):
             return Detection(empty, empty, empty, z.new_zeros(0, self.space.n_parts), no, no,
                              None if band is None else no)
         det = Detection(*(torch.cat(t) for t in zip(*(p[:4] for p in parts))), self.space.outside_box(z))
-        if use_mesh:
-            from neuralcol.nn.mesh_detector import mesh_logits
-
-            meshes = self._vertices(x).numpy() if is_mesh else self.decode(z).cpu().numpy()
-            logit = torch.as_tensor(mesh_logits(self.mesh_detector, meshes), dtype=torch.float32,
-                                    device=det.logit.device)
-            det = det._replace(prob=torch.sigmoid(logit), logit=logit)
         if band is None:
             return det._replace(collides=det.logit > 0)
         return self._certified(det, band, x if is_mesh else None, z)

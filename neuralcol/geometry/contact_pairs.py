@@ -1,9 +1,9 @@
-"""Contact-pair features of a mesh: what a detector that reads the mesh sees (issue 27).
+"""Contact-pair features of a mesh: what a detector that reads the mesh sees (issue 27; since issue 41 the one
+detector over code and mesh, :mod:`neuralcol.nn.part_geometry`, which chooses the pairs per sub-domain).
 
 A self-collision is two pieces of surface that are far apart on the mesh coming close and passing through each
-other. :func:`select_contact_pairs` picks P vertex pairs that are at least ``min_hops`` edges apart on the rest
-mesh but come within ``radius`` of each other in example meshes (colliding examples weigh more);
-:class:`ContactFeatures` measures, for each pair on any mesh of the topology, three penetration-aware numbers
+other. For P chosen vertex pairs (at least ``min_hops`` edges apart, :func:`hop_neighbourhood`, and close in
+example meshes), :class:`ContactFeatures` measures on any mesh of the topology three penetration-aware numbers
 (in units of ``radius``, clipped to ``[-clip, clip]``):
 
 * ``dist``: the distance ``|x_j - x_i|``;
@@ -23,7 +23,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 import torch
-from scipy.spatial import cKDTree
 from torch import nn
 
 N_FEATURES_PER_PAIR = 3
@@ -38,73 +37,6 @@ def hop_neighbourhood(faces: np.ndarray, n_vertices: int, hops: int) -> sp.csr_m
     for _ in range(max(0, int(hops) - 1)):
         near = ((near @ a) > 0).astype(np.float32).tocsr()
     return near
-
-
-def select_contact_pairs(meshes: np.ndarray, collides: np.ndarray, faces: np.ndarray, radius: float,
-                         min_hops: int, n_pairs: int, colliding_weight: float = 3.0,
-                         max_per_vertex: int | None = None, fold_at: int = 20_000_000) -> np.ndarray:
-    """The P vertex pairs that most often come close in ``meshes`` while far apart on the mesh.
-
-    Args:
-        meshes: (N, V, 3) example meshes (e.g. decoded D_c rows and realistic training meshes).
-        collides: (N,) bool, their exact labels; a close pair in a colliding mesh counts ``colliding_weight``.
-        faces: (F, 3) triangles (the hop distance is measured on their edges).
-        radius: pairs closer than this in a mesh are candidates.
-        min_hops: pairs within ``min_hops`` edges of each other are never chosen (their closeness is the
-            surface's own).
-        n_pairs: P, the most pairs returned.
-        colliding_weight: weight of a colliding mesh's close pairs.
-        max_per_vertex: a vertex takes part in at most this many chosen pairs (greedily, most frequent first),
-            so the pairs spread over more of the surface; None: no limit.
-        fold_at: close pairs buffered before they are merged into the running scores (bounds the memory; the
-            result does not depend on it).
-
-    Returns:
-        (P', 2) int64 pairs (i < j), P' <= P, most frequent first (ties by index).
-    """
-    meshes = np.asarray(meshes, np.float64)
-    if meshes.ndim != 3 or meshes.shape[2] != 3:
-        raise ValueError(f"meshes have shape {meshes.shape}, expected (N, V, 3)")
-    n_vert = meshes.shape[1]
-    near = hop_neighbourhood(faces, n_vert, min_hops)
-    # scores summed as the meshes come, folded into (distinct pairs, score) whenever the buffered pairs pass
-    # fold_at: memory follows the distinct pairs, not meshes x pairs per mesh (a 13k-vertex body has ~10^6 close
-    # pairs per mesh; 1 600 examples held at once took 20 GB, issue 31). The weights are small whole numbers, so
-    # the sums are exact in any order and the result is the one of a single fold.
-    uniq, score = np.zeros(0, np.int64), np.zeros(0)
-    keys, weights, n_buffered = [], [], 0
-    for v, c in zip(meshes, np.asarray(collides, bool)):
-        pr = cKDTree(v).query_pairs(float(radius), output_type="ndarray")
-        if len(pr) == 0:
-            continue
-        pr = np.sort(pr[np.asarray(near[pr[:, 0], pr[:, 1]]).ravel() == 0], axis=1)
-        keys.append(pr[:, 0] * n_vert + pr[:, 1])
-        weights.append(np.full(len(pr), float(colliding_weight) if c else 1.0))
-        n_buffered += len(pr)
-        if n_buffered >= fold_at:
-            uniq, score = fold_pair_scores(uniq, score, keys, weights)
-            keys, weights, n_buffered = [], [], 0
-    uniq, score = fold_pair_scores(uniq, score, keys, weights)
-    if len(uniq) == 0:
-        return np.zeros((0, 2), np.int64)
-    order = np.lexsort((uniq, -score))  # by score, ties by pair
-    if max_per_vertex is None:
-        order = order[: int(n_pairs)]
-    else:
-        if int(max_per_vertex) < 1:
-            raise ValueError(f"max_per_vertex={max_per_vertex}: must be >= 1 (or None)")
-        used = np.zeros(n_vert, np.int64)
-        keep = []
-        for k in order:
-            i, j = divmod(int(uniq[k]), n_vert)
-            if used[i] < max_per_vertex and used[j] < max_per_vertex:
-                keep.append(k)
-                used[i] += 1
-                used[j] += 1
-                if len(keep) == int(n_pairs):
-                    break
-        order = np.asarray(keep, np.int64)
-    return np.stack([uniq[order] // n_vert, uniq[order] % n_vert], 1).astype(np.int64).reshape(-1, 2)
 
 
 def fold_pair_scores(uniq: np.ndarray, score: np.ndarray, keys: list, weights: list) -> tuple[np.ndarray, np.ndarray]:

@@ -86,7 +86,7 @@ def alm_resolve(objective: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
         box_lo, box_hi: (D,) the latent box.
         settings: ALM settings.
         logit_takes_rows: ``logit_fn`` is called as ``logit_fn(z, idx)`` with the problems' indices (a
-            constraint that differs per problem, e.g. the mesh detector on each user's corrected mesh).
+            constraint that differs per problem, e.g. a detector judging each problem's own corrected mesh).
 
     Returns:
         Resolution.

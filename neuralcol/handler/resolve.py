@@ -28,7 +28,7 @@ def alm_settings(cfg) -> ALMSettings:
 
 
 def handle_codes(net: torch.nn.Module, z_user: torch.Tensor, box_lo: torch.Tensor, box_hi: torch.Tensor,
-                 settings: ALMSettings, objective=None, batch_size: int = 256, constraint=None) -> Resolution:
+                 settings: ALMSettings, objective=None, batch_size: int = 256) -> Resolution:
     """Run the handler over many codes in batches (on the detector's device); results on the CPU.
 
     Args:
@@ -38,8 +38,6 @@ def handle_codes(net: torch.nn.Module, z_user: torch.Tensor, box_lo: torch.Tenso
         settings: ALM settings.
         objective: ``(z, idx) -> (len(idx),)`` over the N problems; default ``|Z - Z_user|^2 / 2``.
         batch_size: problems solved together.
-        constraint: ``(z, idx) -> (len(idx),)`` logits over the N problems, used instead of ``net``'s logit (e.g.
-            the mesh detector on each input's corrected mesh); evaluated as given (no float64 copy).
     """
     dev = next(net.parameters()).device
     # float64 on a copy of the detector: in float32 the Armijo tests of nearly converged problems fail on
@@ -51,14 +49,8 @@ def handle_codes(net: torch.nn.Module, z_user: torch.Tensor, box_lo: torch.Tenso
     parts = []
     for start in range(0, len(z_user), batch_size):
         rows = torch.arange(start, min(start + batch_size, len(z_user)), device=dev)
-        if constraint is None:
-            res = alm_resolve(lambda z, idx, rows=rows: objective(z, rows[idx]), lambda z: net(z).logit,
-                              z_user[rows.cpu()].to(dev), box_lo.to(dev), box_hi.to(dev), settings)
-        else:
-            res = alm_resolve(lambda z, idx, rows=rows: objective(z, rows[idx]),
-                              lambda z, idx, rows=rows: constraint(z, rows[idx]).to(z),
-                              z_user[rows.cpu()].to(dev), box_lo.to(dev), box_hi.to(dev), settings,
-                              logit_takes_rows=True)
+        res = alm_resolve(lambda z, idx, rows=rows: objective(z, rows[idx]), lambda z: net(z).logit,
+                          z_user[rows.cpu()].to(dev), box_lo.to(dev), box_hi.to(dev), settings)
         parts.append(Resolution(*(t.detach().cpu() for t in res)))
     if not parts:
         empty = torch.zeros(0)
@@ -239,8 +231,7 @@ class MeshResolution(NamedTuple):
 def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
                    label: Callable[[np.ndarray], np.ndarray], settings: ALMSettings, margins=(),
                    batch_size: int = 256, objective=None, anchor: str = "median",
-                   z_user: torch.Tensor | None = None, pd_input: np.ndarray | None = None,
-                   mesh_net: torch.nn.Module | None = None, repair=None, labeler=None,
+                   z_user: torch.Tensor | None = None, pd_input: np.ndarray | None = None, repair=None, labeler=None,
                    progress: bool = False, certify=None) -> MeshResolution:
     """Resolve self-collisions of the user's meshes and return the user's meshes, corrected (issue 27).
 
@@ -260,9 +251,6 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
         anchor: see :func:`transfer_displacement`.
         z_user: (N, D) the inputs' codes if already known (default: encoded here).
         pd_input: (N,) the inputs' exact PD if already known (default: labeled here).
-        mesh_net: the detector that reads the mesh: if given, the handler's constraint is its logit on each
-            input's *returned* mesh ``v_user + D(Z) - D(Z_user)`` (differentiable through the decoder; slower),
-            instead of the latent detector's logit on Z.
         repair: :class:`~neuralcol.handler.contact_repair.RepairSettings` or None: the returned meshes the exact
             labeler still finds self-penetrating after the margins get the contact repair (our addition), which
             is kept where it lowers the exact PD; with ``repair.first`` the colliding inputs are also repaired
@@ -273,12 +261,10 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
         certify: a :class:`~neuralcol.metrics.cascade.Band` or None: verify through the certified cascade
             (:class:`CertifiedLabel`): a handled result is labeled exactly only where the latent detector's logit
             on its code lies in the band; below it the detector is trusted (free, kept), at or above it the result
-            counts as still colliding (handled again with the next margin, then repaired). Not with ``mesh_net``.
+            counts as still colliding (handled again with the next margin, then repaired).
     """
     if repair is not None and labeler is None:
         raise ValueError("resolve_meshes: repair needs the exact labeler (labeler=...)")
-    if certify is not None and mesh_net is not None:
-        raise ValueError("resolve_meshes: certify is calibrated on the latent detector's logit, not mesh_net's")
     v_user = torch.as_tensor(v_user).detach().to("cpu", torch.float64)
     z_user = (space.encode(v_user) if z_user is None else z_user).detach().float().cpu()
     dev = space.box_lo.device
@@ -289,14 +275,6 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
         return torch.cat(parts) if parts else v_user[:0]
 
     base = decode(z_user)
-    constraint = None
-    if mesh_net is not None:
-        mesh_net = copy.deepcopy(mesh_net).double().eval()
-
-        def constraint(z: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
-            r = idx.cpu()
-            return mesh_net(transfer_displacement(v_user[r], base[r], space.decode(z.to(dev).float()).double()
-                                                  .cpu(), anchor))
 
     def handle(rows: np.ndarray, margin: float) -> Resolution:
         idx_map = torch.as_tensor(rows, device=dev)
@@ -306,9 +284,7 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
 
         return handle_codes(net, z_user[torch.as_tensor(rows)], space.box_lo, space.box_hi,
                             replace(settings, margin=margin), batch_size=batch_size,
-                            objective=None if objective is None else target,
-                            constraint=None if constraint is None else
-                            (lambda z, idx: constraint(z, idx_map[idx])))
+                            objective=None if objective is None else target)
 
     def returned(z: torch.Tensor, rows: np.ndarray) -> torch.Tensor:
         r = torch.as_tensor(rows)

@@ -36,8 +36,8 @@ def close_pair_scores(meshes: np.ndarray, collides: np.ndarray, rest: np.ndarray
                       radius: float, min_hops: int, fold_ratio: float, colliding_weight: float,
                       fold_at: int = 20_000_000) -> tuple[np.ndarray, np.ndarray]:
     """How often each vertex pair comes close in ``meshes`` (see the module doc for *close*). The scores are
-    folded into running sums whenever ``fold_at`` pairs are buffered, as in
-    :func:`~neuralcol.geometry.contact_pairs.select_contact_pairs` (a body has ~10^6 close pairs per mesh).
+    folded into running sums whenever ``fold_at`` pairs are buffered
+    (:func:`~neuralcol.geometry.contact_pairs.fold_pair_scores`; a body has ~10^6 close pairs per mesh).
 
     Returns:
         (pairs (Q, 2) int64 with i < j, scores (Q,)): every pair close in at least one mesh, by key order.

@@ -63,7 +63,7 @@ def realistic_rows(space, vertices: np.ndarray, features: np.ndarray, acap, trai
     Args:
         space: the latent space. vertices, features, acap: the data set's meshes, raw ACAP features, transform.
         train_index: the autoencoder's training meshes (the only sources). pool: label pool of the run's sample
-            labeler. train_set_cfg: how many of each kind (``mesh_detector.train_set``). samples_dir: the latent
+            labeler. train_set_cfg: how many of each kind (``detector.geometry.train_set``). samples_dir: the latent
             space's samples cache. eps: the labeler's boundary width.
     """
     from neuralcol.stages.realistic import realistic_set

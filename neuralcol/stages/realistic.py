@@ -141,8 +141,7 @@ def round_trip_agreement(pd_round_trip: np.ndarray, truth: np.ndarray, clear: np
 
 
 def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd: np.ndarray, pool, eps: float,
-                       cfg, settings: ALMSettings, margins=(), batch_size: int = 256,
-                       mesh_net: torch.nn.Module | None = None, repair=None,
+                       cfg, settings: ALMSettings, margins=(), batch_size: int = 256, repair=None,
                        references: dict | None = None) -> tuple[dict, dict]:
     """The detector, the autoencoder's round trip and the handler on the realistic meshes.
 
@@ -153,8 +152,6 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
         eps: the labeler's boundary width (``clear_eps`` is in these units).
         cfg: the ``realistic`` config (``clear_eps``, ``handler_inputs``, ``anchor``).
         settings, margins, batch_size: the handler's settings, verification margins and batch.
-        mesh_net: the detector that reads the mesh (:class:`~neuralcol.nn.mesh_detector.MeshDetector`), judged
-            on the meshes themselves (``detection_mesh``, ``per_kind_mesh``); None: not evaluated.
         repair: :class:`~neuralcol.handler.contact_repair.RepairSettings` or None: the contact repair as the
             handler's last verified stage (the pool's labeler runs it, in this process); with
             ``repair_reference`` in ``cfg`` the repair alone on the inputs is measured beside it
@@ -210,16 +207,6 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
             metrics["round_trip"]["references"][name] = round_trip_agreement(pd_ref, truth, clear)
     arrays = {"z": z.numpy(), "logit": logit, "pd": pd, "pd_round_trip": pd_rt, "clear": clear,
               "kind": meshes.kind, "out_of_box": oob}
-    if mesh_net is not None:
-        from neuralcol.nn.mesh_detector import mesh_logits
-
-        logit_mesh = mesh_logits(mesh_net, meshes.vertices)
-        pred_mesh = logit_mesh > 0
-        metrics["detection_mesh"] = _detection(pred_mesh[clear], truth[clear])
-        metrics["detection_mesh_all"] = _detection(pred_mesh[labeled], truth[labeled])
-        metrics["per_kind_mesh"] = {k: _detection(pred_mesh[clear & (meshes.kind == i)],
-                                                  truth[clear & (meshes.kind == i)]) for i, k in enumerate(KINDS)}
-        arrays["logit_mesh"] = logit_mesh
     n_h = int(c.get("handler_inputs", 0))
     pick = np.flatnonzero(clear & truth)[:n_h]
     if len(pick):
@@ -228,9 +215,7 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
         res = resolve_meshes(net, space, v[torch.as_tensor(pick)],
                              lambda x: pool_pd(pool, x, desc="labeling resolved meshes"), settings, margins,
                              batch_size, anchor=str(c.get("anchor", "median")), z_user=z[torch.as_tensor(pick)],
-                             pd_input=pd[pick],
-                             mesh_net=mesh_net if c.get("handler_constraint", "latent") == "mesh" else None,
-                             repair=repair, labeler=pool.labeler if repair is not None else None)
+                             pd_input=pd[pick], repair=repair, labeler=pool.labeler if repair is not None else None)
         moved = displacement_stats(meshes.vertices[pick], res.vertices, diag)
         ok = np.isfinite(res.pd_after)
         t_handle = time.perf_counter() - t_h
@@ -246,8 +231,6 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
 
         metrics["handling"] = {
             "n": int(len(pick)), "anchor": str(c.get("anchor", "median")),
-            "constraint": "mesh" if c.get("handler_constraint", "latent") == "mesh" and mesh_net is not None
-            else "latent",
             "detector_only": rates(res.pd_after_detector), "verified": rates(res.pd_after),
             "verified_margins_only": rates(res.pd_after_escalation),
             "repair": None if repair is None else {**repair.__dict__, "n_repaired": int(res.repaired.sum())},

@@ -15,11 +15,11 @@ the run's U(Z) test set, so a user reads off "FNR 1 % costs X samples/s". The me
 * ``fcl``: :class:`~neuralcol.collision.fcl_labeler.FCLLabeler` (python-fcl, the paper's labeler), its
   ``verdict``; scored on ``n_fcl`` test codes. Skipped with a note when python-fcl is not importable. MeshLab and
   FCL do not count touching contacts (or one-vertex folds) as ours does, so accuracy < 1 there is a finding;
-* ``latent detector``: the run's final detector on codes, batch ``batch`` (4096): eager, and compiled
-  (:class:`~neuralcol.nn.fast_inference.FastDetector`, forms ``forms``). Accuracy of the eager float32 form:
-  the run's ``test_predictions.npz`` (its reported test metrics); of the others: measured on the whole test set;
-* ``mesh detector``: decode, then the detector that reads the mesh (when the run has one); its U(Z) accuracy
-  from ``metrics["mesh_detector"]["test"]`` if recorded, else on ``n_mesh_detector`` test codes;
+* ``latent detector`` (``code+mesh detector`` for a detector over code and mesh, issue 41: its time includes
+  decoding the vertices its pair features read): the run's final detector on codes, batch ``batch`` (4096): eager,
+  and compiled (:class:`~neuralcol.nn.fast_inference.FastDetector`, forms ``forms``). Accuracy of the eager float32
+  form: the run's ``test_predictions.npz`` (its reported test metrics); of the others: measured on the whole test
+  set;
 * ``cascade``: one point per target FNR of ``metrics["cascade"]`` (written by the cascade stage), priced with this
   stage's timings so it is side by side with the others: the eager detector on every code plus the exact verdict
   (the cascade's exact path; the full label when the verdict is not timed) on its ``exact_share``
@@ -51,7 +51,7 @@ from neuralcol.utils.config import as_dict
 
 FORMS = ("float32", "bfloat16", "bfloat16_checked")  # neuralcol.nn.fast_inference.FORMS
 LABELER_KEYS = ("touch_tol", "clearance_cap", "boundary_eps", "cell_factor")  # shared by ExactLabeler and FCLLabeler
-COUNT_KEYS = {"n_timed": 1, "batch": 1, "reps": 1, "n_exact": 0, "n_meshlab": 0, "n_fcl": 0, "n_mesh_detector": 0}
+COUNT_KEYS = {"n_timed": 1, "batch": 1, "reps": 1, "n_exact": 0, "n_meshlab": 0, "n_fcl": 0}
 
 
 def speed_accuracy_problems(cfg) -> list[str]:
@@ -160,7 +160,7 @@ def detector_family(net) -> str:
     return CODE_AND_MESH if inner is not None and inner.geometry is not None else "latent detector"
 
 
-def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict | None = None, mesh_net=None,
+def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict | None = None,
                            run_dir: str | Path | None = None, log: Callable[[str], None] = print) -> dict:
     """Throughput against accuracy and FNR of each method on the run's U(Z) test set (see the module docstring).
 
@@ -171,8 +171,7 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
         cfg: the ``speed_accuracy`` config group.
         labeling: the run's ``labeling`` group (its ``labeler`` settings build ExactLabeler and FCLLabeler, and
             ``backend`` names the labels' source); None: the labelers' defaults.
-        metrics: the run's metrics so far (``cascade``, ``mesh_detector``), or None.
-        mesh_net: the detector that reads the mesh, or None.
+        metrics: the run's metrics so far (``cascade``), or None.
         run_dir: the run directory (its ``test_predictions.npz`` gives the eager detector's test accuracy).
         log: progress lines.
 
@@ -241,15 +240,9 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
                 continue
             if compiled:
                 log(f"[speed] compiled the detector ({form}) in {time.perf_counter() - t0:.1f} s")
-    if mesh_net is not None:
-        from neuralcol.nn.mesh_detector import code_logits
-
-        mesh_net = copy.deepcopy(mesh_net).cpu().eval()
-    elif family == CODE_AND_MESH:
+    if family == CODE_AND_MESH:
         notes.append(f"{family}: its time includes decoding the {len(net.detector.geometry.vertex_index)} vertices "
                      "its pair features read")
-    else:
-        notes.append("no mesh detector in this run (mesh_detector.enabled=false): left out")
 
     # ---------------------------------------------------------------- accuracy against the test set's labels
     # (first: it also warms up numba's kernels, python-fcl and MeshLab before the timing)
@@ -284,15 +277,6 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
         scored[key] = _scores(det(torch.as_tensor(z_all)).logit.numpy() > 0, y_all)
     log(f"[speed] {len(detectors)} latent detector forms scored on {len(z_all)} test codes "
         f"({time.perf_counter() - t0:.1f} s)")
-    if mesh_net is not None:
-        key = ("mesh detector", "decode + network")
-        rec = (metrics.get("mesh_detector") or {}).get("test")
-        if rec and rec.get("n"):
-            scored[key] = (rec["accuracy"], _finite(rec.get("fnr")), int(rec["n"]))
-        else:
-            n = min(int(c["n_mesh_detector"]), len(z_all))
-            sel = order[:n]
-            scored[key] = _scores(code_logits(mesh_net, space, z_all[sel]) > 0, y_all[sel]) if n else (None, None, 0)
 
     # ---------------------------------------------------------------- throughput, timed on the same codes
     batch = int(c["batch"])
@@ -307,11 +291,6 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
     for key, det in detectors.items():
         timed[key] = warm[key] = (lambda d: lambda: d(z_b))(det)
         per_call[key] = batch
-    if mesh_net is not None:
-        key = ("mesh detector", "decode + network")
-        timed[key] = lambda: code_logits(mesh_net, space, z_t)
-        warm[key] = lambda: code_logits(mesh_net, space, z_t[:1])
-        per_call[key] = n_timed
     timed[("decode", "")] = warm[("decode", "")] = lambda: decode(space, z_t)  # the share all mesh methods pay
     per_call[("decode", "")] = n_timed
     reps = int(c["reps"])
