@@ -76,8 +76,8 @@ def test_bad_settings_and_missing_anny_are_one_clear_line(monkeypatch):
 
 def test_pipeline_end_to_end_on_a_body_subset(tmp_path):
     """The whole run at body size (13 348 vertices, 26 692 triangles) on 20 poses with the tiny presets and fewer
-    samples: every stage (data labels, autoencoder, D_c, the detector over code and mesh with its realistic training
-    rows, handler, cascade, realistic set, speed chart) meets the large mesh once in ``make test``."""
+    samples: every stage (data labels, autoencoder, D_c, detector, handler, cascade, realistic set, speed chart) meets
+    the large mesh once in ``make test``."""
     from hydra import compose, initialize_config_dir
 
     from experiments.run import run
@@ -89,9 +89,7 @@ def test_pipeline_end_to_end_on_a_body_subset(tmp_path):
             "n_example_meshes=1", "autoencoder=tiny", "detector=tiny", "detector.n_init=24", "detector.n_aug=12",
             "detector.max_rounds=1", "detector.test_size=32", "detector.cascade.calibration_size=32",
             "realistic=tiny", "realistic.n_acap_interp=6", "realistic.n_vertex_interp=3", "realistic.n_perturbed=3",
-            "realistic.handler_inputs=2", "detector.inputs=code_and_mesh", "detector.geometry.select_codes=12",
-            "detector.geometry.train_set.n_acap_interp=6", "detector.geometry.train_set.n_vertex_interp=3",
-            "detector.geometry.train_set.n_perturbed=3",
+            "realistic.handler_inputs=2",
             "speed_accuracy=tiny", "speed_accuracy.n_exact=4", "speed_accuracy.n_meshlab=4", "speed_accuracy.n_fcl=2",
             "handler.n_inputs=2", "handler.verify_margins=[4.0]", "labeling.pool.workers=0",
             "labeling.pool.progress=false"])
@@ -100,6 +98,5 @@ def test_pipeline_end_to_end_on_a_body_subset(tmp_path):
     assert m["autoencoder"]["latent_dim"] == 16 and m["latent"]["dim"] == 16  # no level 2 (conf/dataset/anny_body)
     assert [r["dataset_size"] for r in m["rounds"]] == [24, 36]
     assert m["detector"]["test_set"]["n"] == 32 and 0 <= m["rounds"][-1]["accuracy"] <= 1
-    assert m["detector"]["inputs"] == "code_and_mesh" and m["detector"]["n_pairs"] > 0 and m["realistic"]["n"] > 0
-    assert "mesh_detector" not in m
+    assert m["realistic"]["n"] > 0 and "mesh_detector" not in m  # (the separate mesh detector: gone in issue 41)
     assert (tmp_path / "run" / "metrics.json").is_file() and (tmp_path / "run" / "speed_accuracy.png").is_file()
