@@ -163,6 +163,16 @@ class PCALatentSpace(LatentBox):
         centroid = self.rest_vertices.mean(0).to(z_all)
         return self._linear(z_all, cols).view(z_all.shape[0], -1, 3) + centroid
 
+    def vertex_decoder(self, idx):
+        """A function ``z (B, D) -> (V', 3, B)``: :meth:`decode_vertices` of the vertices ``idx`` with the batch
+        last (:func:`~neuralcol.nn.part_geometry.vertex_decoder`). For ``basis="vertex"`` one product
+        ``W_idx^T z^T + (mean + centroid)`` with the basis columns taken once here; for ``"acap"`` the decode and
+        a transpose."""
+        idx = torch.as_tensor(np.asarray(idx), dtype=torch.long).reshape(-1)
+        if self.basis != "vertex":
+            return lambda z: self.decode_vertices(z, idx).permute(1, 2, 0)
+        return LinearVertexDecoder(self, idx)
+
     # ------------------------------------------------------------------ persistence
     def save(self, path: str | Path) -> Path:
         """Save the basis, box, partition and facts to one file of tensors and plain values."""
@@ -213,3 +223,23 @@ def pca_space(basis: str, vertices: np.ndarray, features: np.ndarray | None, tra
     margin = float(box_margin) * (hi - lo)
     return PCALatentSpace(basis, pca, rest_vertices, faces, acap_kwargs, n_components, lo - margin, hi + margin,
                           torch.as_tensor(np.asarray(partition)), meta)
+
+
+class LinearVertexDecoder:
+    """``z (B, D) -> (V', 3, B)``, the vertices ``idx`` of a vertex-basis PCA space, batch last: ``W^T z^T + c``
+    with ``W`` its components' columns of those vertices and ``c`` the mean's plus the rest centroid, both taken
+    once (float64 and float32 copies, on the space's device; moved to ``z``'s device on first use there)."""
+
+    def __init__(self, space: PCALatentSpace, idx: torch.Tensor):
+        cols = (idx[:, None] * 3 + torch.arange(3)).reshape(-1).to(space.pca_mean.device)
+        centroid = space.rest_vertices.mean(0).to(torch.float64).repeat(len(idx)).to(space.pca_mean.device)
+        w = space.pca_components[:, cols].T.contiguous()  # (3 V', D)
+        c = (space.pca_mean[cols] + centroid)[:, None].contiguous()  # (3 V', 1)
+        self._weights = {torch.float64: (w, c), torch.float32: (w.float(), c.float())}
+
+    def __call__(self, z: torch.Tensor) -> torch.Tensor:
+        w, c = self._weights.get(z.dtype) or self._weights[torch.float64]
+        if w.device != z.device:
+            w, c = w.to(z.device), c.to(z.device)
+            self._weights[z.dtype] = (w, c)
+        return torch.addmm(c.to(z.dtype), w.to(z.dtype), z.T).view(-1, 3, len(z))
