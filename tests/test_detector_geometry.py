@@ -126,6 +126,44 @@ def test_detector_on_codes_is_a_function_of_codes_alone():
     torch.testing.assert_close(DetectorOnCodes(code_only, space)(z).logit, code_only(z).logit)
 
 
+@pytest.mark.parametrize("pool", ["linear", "deepsets"])
+def test_batch_last_embedding_equals_the_per_part_one(pool):
+    """embed_batch_last on (3 P, B) features = geometry_embedding(per_part(...)) on the (B, P, 3) ones, empty slots
+    included (per_part=5 leaves some empty)."""
+    torch.manual_seed(6)
+    det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry(per_part=5), geometry_pool=pool).double()
+    z = torch.randn(7, 2, dtype=torch.float64)
+    pair_feats = geometry_of_codes(det.geometry, LinearSpace(2), z)  # (B, P, 3)
+    batch_last = pair_feats.permute(2, 1, 0).reshape(-1, len(z))  # (3 P, B): [dist..., s_min..., s_max...]
+    torch.testing.assert_close(det.embed_batch_last(batch_last),
+                               det.geometry_embedding(det.geometry.per_part(pair_feats)))
+    torch.testing.assert_close(det(z, embedding=det.embed_batch_last(batch_last)).logit, det(z, pair_feats).logit)
+    with pytest.raises(ValueError, match="not both"):
+        det(z, pair_feats, embedding=det.embed_batch_last(batch_last))
+    with pytest.raises(ValueError, match="embedding has shape"):
+        det(z, embedding=det.embed_batch_last(batch_last)[:, :1])
+
+
+def test_detector_on_codes_fast_path_equals_decoding_then_reading_the_mesh():
+    """DetectorOnCodes (batch-last decode, features and embedding; blocks without gradients) = the detector on the
+    pair features of the decoded meshes: outputs, gradients in z, and blocked inference."""
+    torch.manual_seed(7)
+    space = LinearSpace(2, seed=8)
+    det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry()).double()
+    on_codes = DetectorOnCodes(det, space)
+    z = torch.randn(300, 2, dtype=torch.float64, requires_grad=True)
+    fast = on_codes(z).logit
+    slow = det(z, geometry_of_codes(det.geometry, space, z)).logit
+    torch.testing.assert_close(fast, slow)
+    g_fast, = torch.autograd.grad(fast.sum(), z)
+    g_slow, = torch.autograd.grad(slow.sum(), z)
+    torch.testing.assert_close(g_fast, g_slow)
+    assert torch.autograd.gradcheck(lambda c: on_codes(c).logit, (z[:3].detach().requires_grad_(True),),
+                                    eps=1e-6, atol=1e-5)
+    with torch.no_grad():  # 300 rows > inference_block: three blocks
+        torch.testing.assert_close(on_codes(z.detach()).logit, slow.detach())
+
+
 def test_training_reads_the_pair_features_stored_with_dc(tmp_path):
     """D_c keeps each row's pair features; the datamodule serves them and the LightningModule feeds them in."""
     import lightning as L

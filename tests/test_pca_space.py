@@ -88,6 +88,12 @@ def test_decode_vertices_gradients_and_save_load(tube_dataset, tmp_path, basis):
     np.testing.assert_allclose(space.decode_vertices(z, idx).detach().numpy(), full[:, idx].detach().numpy(),
                                atol=1e-9)
     assert torch.autograd.gradcheck(lambda c: space.decode_vertices(c, idx), (z[:1],), eps=1e-6, atol=1e-5)
+    # batch last (the detector over code and mesh on codes): the same vertices, (K, 3, B), in float64 and float32
+    decoder = space.vertex_decoder(torch.as_tensor(idx))
+    torch.testing.assert_close(decoder(z), full[:, idx].permute(1, 2, 0))
+    torch.testing.assert_close(decoder(z.detach().float()), full[:, idx].detach().permute(1, 2, 0).float(),
+                               atol=1e-5, rtol=1e-5)
+    assert torch.autograd.gradcheck(decoder, (z[:1],), eps=1e-6, atol=1e-5)
     loaded = LatentSpace.load(space.save(tmp_path / "latent_space.pt"))
     assert isinstance(loaded, PCALatentSpace) and loaded.basis == basis
     np.testing.assert_array_equal(loaded.decode(z.detach()).numpy(), space.decode(z.detach()).numpy())

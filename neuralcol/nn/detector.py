@@ -149,9 +149,10 @@ class CollisionDetector(nn.Module):
             return z0
         return torch.cat([z0, z_all[:, k:].reshape(-1, k, d)], dim=-1)  # (B, K, 1 + d)
 
-    def forward(self, z_all: torch.Tensor, geometry: torch.Tensor | None = None) -> DetectorOutput:
-        """Z_all (B, D) [and, for a detector with geometry, the pair features of the meshes (B, P, 3)] ->
-        DetectorOutput.
+    def forward(self, z_all: torch.Tensor, geometry: torch.Tensor | None = None, *,
+                embedding: torch.Tensor | None = None) -> DetectorOutput:
+        """Z_all (B, D) [and, for a detector with geometry, the pair features of the meshes (B, P, 3), or their
+        embedding (B, K, G) already computed (``embedding=``, :meth:`embed_batch_last`)] -> DetectorOutput.
 
         Without gradients on the CPU, a batch larger than ``inference_block`` rows runs block by block: the
         (block, K, hidden) intermediates then stay in cache (with the split CP layer of ``_cp``: 1.9x faster at
@@ -159,23 +160,39 @@ class CollisionDetector(nn.Module):
         """
         if z_all.ndim != 2 or z_all.shape[1] != self.latent_dim:
             raise ValueError(f"z_all has shape {tuple(z_all.shape)}, expected (B, {self.latent_dim})")
-        if (self.geometry is None) != (geometry is None):
+        if geometry is not None and embedding is not None:
+            raise ValueError("pass the pair features (geometry) or their embedding, not both")
+        given = geometry if embedding is None else embedding
+        if (self.geometry is None) != (given is None):
             raise ValueError("this detector reads the codes only: pass no geometry" if self.geometry is None else
                              "this detector reads the mesh too: pass its pair features (B, P, 3) "
                              "(geometry_of_codes or detector.geometry_of_meshes)")
         if geometry is not None and tuple(geometry.shape) != (len(z_all), self.geometry.n_pairs, 3):
             raise ValueError(f"geometry has shape {tuple(geometry.shape)}, expected ({len(z_all)}, "
                              f"{self.geometry.n_pairs}, 3)")
+        if embedding is not None and tuple(embedding.shape) != (len(z_all), self.n_components,
+                                                                self.n_geometry_features):
+            raise ValueError(f"embedding has shape {tuple(embedding.shape)}, expected ({len(z_all)}, "
+                             f"{self.n_components}, {self.n_geometry_features})")
         block = self.inference_block
         if (block and len(z_all) > block and z_all.device.type == "cpu" and not torch.is_grad_enabled()
                 and not torch.jit.is_tracing() and not torch.onnx.is_in_onnx_export()):
-            outs = [self._forward(z_all[i:i + block]) if geometry is None else
-                    self._forward(z_all[i:i + block], geometry[i:i + block]) for i in range(0, len(z_all), block)]
+            outs = [self._forward(z_all[i:i + block], *self._rows(geometry, embedding, i, block))
+                    for i in range(0, len(z_all), block)]
             return DetectorOutput(*(torch.cat(t) for t in zip(*outs)))
-        return self._forward(z_all) if geometry is None else self._forward(z_all, geometry)
+        return self._forward(z_all, *self._rows(geometry, embedding, 0, len(z_all)))
 
-    def inputs(self, z_all: torch.Tensor, geometry: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """Z_all (B, D) -> (per-sub-domain inputs of CP (B, K, P), input of CSE (B, K P))."""
+    @staticmethod
+    def _rows(geometry, embedding, start: int, block: int) -> tuple:
+        """The rows ``start:start + block`` of the geometry inputs given, as ``_forward``'s extra arguments."""
+        if embedding is not None:
+            return None, embedding[start:start + block]
+        return () if geometry is None else (geometry[start:start + block],)
+
+    def inputs(self, z_all: torch.Tensor, geometry: torch.Tensor | None = None,
+               embedding: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Z_all (B, D) [, pair features (B, P, 3) or their embedding (B, K, G)] -> (per-sub-domain inputs of CP
+        (B, K, P), input of CSE (B, K P))."""
         x = (z_all - self.center) / self.half_range  # the box -> [-1, 1]
         parts = self.split(x)  # (B, K, 1 + d)
         cse_in = x
@@ -186,7 +203,9 @@ class CollisionDetector(nn.Module):
             parts = torch.cat([parts, h], dim=-1)  # (B, K, 1 + d + H)
             cse_in = torch.cat([cse_in, h.flatten(1)], dim=-1)  # (B, D + K H)
         if geometry is not None:
-            g = self.geometry_embedding(self.geometry.per_part(geometry.to(x.dtype)))  # (B, K, G)
+            embedding = self.geometry_embedding(self.geometry.per_part(geometry.to(x.dtype)))  # (B, K, G)
+        if embedding is not None:
+            g = embedding.to(x.dtype)
             parts = torch.cat([parts, g], dim=-1)
             cse_in = torch.cat([cse_in, g.flatten(1)], dim=-1)
         return parts, cse_in
@@ -204,12 +223,23 @@ class CollisionDetector(nn.Module):
         hmean = (h * mask).sum(2) / mask.sum(2).clamp_min(1)
         return torch.cat([hmax, hmean], -1)
 
+    def embed_batch_last(self, feats: torch.Tensor) -> torch.Tensor:
+        """Batch-last pair features (3 P, B) (:meth:`~neuralcol.nn.part_geometry.PartGeometry.features_batch_last`)
+        -> the geometry embedding (B, K, G): what :meth:`geometry_embedding` gives for the same features, the
+        linear pool as one batched product over sub-domains with the batch last."""
+        if self.geometry_pool != "linear":
+            pair_feats = feats.T.reshape(feats.shape[1], 3, -1).transpose(1, 2)  # (B, P, 3)
+            return self.geometry_embedding(self.geometry.per_part(pair_feats))
+        x = self.geometry.per_part_batch_last(feats)  # (K, 3 M, B)
+        return F.celu(torch.bmm(self.slot_w.transpose(1, 2), x).permute(2, 0, 1) + self.slot_b)
+
     def geometry_of_meshes(self, vertices: torch.Tensor) -> torch.Tensor:
         """Whole meshes (B, V, 3) -> the pair features (B, P, 3) this detector reads."""
         return self.geometry.pair_features(vertices)
 
-    def _forward(self, z_all: torch.Tensor, geometry: torch.Tensor | None = None) -> DetectorOutput:
-        parts, cse_in = self.inputs(z_all, geometry)
+    def _forward(self, z_all: torch.Tensor, geometry: torch.Tensor | None = None,
+                 embedding: torch.Tensor | None = None) -> DetectorOutput:
+        parts, cse_in = self.inputs(z_all, geometry, embedding)
         s0 = self.cse(cse_in)  # (B, S)
         s = self._cp(s0, parts)  # (B, K)
         logit = self.mlp_c(s)[:, 0]

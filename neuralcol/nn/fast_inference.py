@@ -25,7 +25,7 @@ import copy
 import torch
 
 from neuralcol.nn.detector import CollisionDetector, DetectorOutput
-from neuralcol.nn.part_geometry import geometry_of_codes
+from neuralcol.nn.part_geometry import vertex_decoder
 
 DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 MIN_PADDED_ROWS = 16  # the smallest compiled block
@@ -34,6 +34,7 @@ RECHECK_BAND = 0.5  # logit band recomputed in float32 by the "bfloat16_checked"
 FORMS = {"float32": ("float32", None), "bfloat16": ("bfloat16", None),
          "bfloat16_checked": ("bfloat16", RECHECK_BAND)}  # name -> (dtype, recheck_band): run.detect(fast=name)
 CPU_BLOCKS = {"float32": 1024, "bfloat16": 2048}  # default rows per compiled call on the CPU
+CPU_BLOCKS_MESH = 256  # ... for a detector that reads the mesh too (128-512 alike compiled, 1024: 1.5x slower; stop 48)
 RECOMPILE_LIMIT = 64  # compiled variants per code object (dynamo's default: 8)
 
 
@@ -59,7 +60,7 @@ class FastDetector:
             CUDA); False runs the copy eagerly (for comparison, or where no compiler exists).
         block: rows per compiled call (default on the CPU: 1024 in float32, 2048 in bfloat16, the fastest of
             256-4096 on a 2-core AVX-512 machine, ``python -m research.detector_forward RUN --fast-blocks ...``,
-            docs/model_size.md; on CUDA 65536).
+            docs/model_size.md; a detector that reads the mesh too: 256; on CUDA 65536).
         recheck_band: bfloat16 only: rows whose bfloat16 logit lies within this distance of 0 are recomputed by a
             float32 copy (compiled like this one), so their outputs, and every predicted label whose bfloat16
             logit error is below the band, are float32's. None: no recheck. ``rechecked_fraction`` holds the
@@ -76,7 +77,8 @@ class FastDetector:
             raise ValueError(f"dtype={dtype!r}; use one of {sorted(DTYPES)}")
         device = next(net.parameters()).device
         if block is None:
-            block = CPU_BLOCKS[dtype] if device.type == "cpu" else 65536
+            reads_mesh = getattr(getattr(net, "detector", net), "geometry", None) is not None
+            block = ((CPU_BLOCKS_MESH if reads_mesh else CPU_BLOCKS[dtype]) if device.type == "cpu" else 65536)
         block = int(block)
         if block < 1:
             raise ValueError(f"block={block} must be >= 1")
@@ -92,6 +94,7 @@ class FastDetector:
         self._space = getattr(net, "space", None) if getattr(net, "detector", None) is not None else None
         net = net.detector if self._space is not None else net
         self._geometry = None if net.geometry is None else copy.deepcopy(net.geometry).eval()
+        self._decode = None if self._geometry is None else vertex_decoder(self._space, self._geometry.vertex_index)
         self.net = copy.deepcopy(net).eval().to(self.dtype)
         for p in self.net.parameters():
             p.requires_grad_(False)
@@ -126,8 +129,8 @@ class FastDetector:
 
     def _block_forward(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         if self._geometry is not None:
-            g = geometry_of_codes(self._geometry, self._space, z.float())
-            out = self.net._forward(z.to(self.dtype), g.to(self.dtype))
+            feats = self._geometry.features_batch_last(self._decode(z.float()))  # (3 P, B) float32
+            out = self.net._forward(z.to(self.dtype), embedding=self.net.embed_batch_last(feats.to(self.dtype)))
             return out.prob.float(), out.logit.float(), out.s.float()
         out = self.net._forward(z.to(self.dtype))
         return out.prob.float(), out.logit.float(), out.s.float()

@@ -29,7 +29,13 @@ import torch
 from scipy.spatial import cKDTree
 from torch import nn
 
-from neuralcol.geometry.contact_pairs import ContactFeatures, contact_features, fold_pair_scores, hop_neighbourhood
+from neuralcol.geometry.contact_pairs import (
+    ContactFeatures,
+    contact_features,
+    contact_features_batch_last,
+    fold_pair_scores,
+    hop_neighbourhood,
+)
 
 
 def close_pair_scores(meshes: np.ndarray, collides: np.ndarray, rest: np.ndarray, faces: np.ndarray,
@@ -154,6 +160,12 @@ class PartGeometry(nn.Module):
         self.register_buffer("local_faces", local[self.contact.faces], persistent=False)
         self.register_buffer("slots", torch.as_tensor(slots, dtype=torch.long))
         self.register_buffer("mask", torch.as_tensor(mask, dtype=torch.bool))
+        # the per-sub-domain layout as rows of the batch-last features (3 P, B) plus one zero row (index 3 P) for
+        # the empty slots: slot (k, m), feature c -> row c P + slots[k, m] (not saved: derived)
+        p = self.n_pairs
+        rows = torch.arange(3)[None, None, :] * p + self.slots[:, :, None]
+        self.register_buffer("slot_rows", torch.where(self.mask[:, :, None], rows, 3 * p).reshape(-1),
+                             persistent=False)
 
     @property
     def n_pairs(self) -> int:
@@ -169,6 +181,19 @@ class PartGeometry(nn.Module):
         f = contact_features(vertices, self.local_pairs, self.local_faces, self.contact.radius, self.contact.clip)
         return f.reshape(len(f), 3, -1).transpose(1, 2)  # (B, 3 P) as [dist..., s_min..., s_max...] -> (B, P, 3)
 
+    def features_batch_last(self, x: torch.Tensor) -> torch.Tensor:
+        """The vertices ``vertex_index`` batch last, (V', 3, B) -> (3 P, B) ``[dist..., s_min..., s_max...]``:
+        :meth:`features_of_vertices` without its two transposes (the fast path on codes, :class:`DetectorOnCodes`)."""
+        return contact_features_batch_last(x, self.local_pairs, self.local_faces, self.contact.radius,
+                                           self.contact.clip)
+
+    def per_part_batch_last(self, feats: torch.Tensor) -> torch.Tensor:
+        """(3 P, B) batch-last features -> (K, 3 M, B): each sub-domain's slots as ``per_part(...).flatten(2)``
+        lays them out (slot-major, the 3 features minor), empty slots zero."""
+        k, m = self.slots.shape
+        padded = torch.cat([feats, feats.new_zeros(1, feats.shape[1])])
+        return padded[self.slot_rows].view(k, 3 * m, feats.shape[1])
+
     def per_part(self, pair_feats: torch.Tensor) -> torch.Tensor:
         """(B, P, 3) -> (B, K, M, 3), empty slots zero (use ``mask``)."""
         out = pair_feats[:, self.slots]  # (B, K, M, 3)
@@ -181,23 +206,44 @@ def geometry_of_codes(geometry: PartGeometry, space, z_all: torch.Tensor) -> tor
     return geometry.features_of_vertices(space.decode_vertices(z_all, geometry.vertex_index.cpu().numpy()))
 
 
+def vertex_decoder(space, idx: torch.Tensor):
+    """A function ``z (B, D) -> (V', 3, B)``: the vertices ``idx`` of ``space.decode(z)`` with the batch last,
+    differentiable. The space's own ``vertex_decoder(idx)`` where it has one (a PCA space of vertex positions: one
+    product that writes the batch-last layout, no index conversion per call, so ``torch.compile`` fuses it with
+    the features); else ``decode_vertices`` and a transpose."""
+    own = getattr(space, "vertex_decoder", None)
+    if own is not None:
+        return own(idx)
+    idx_np = idx.cpu().numpy()
+    return lambda z: space.decode_vertices(z, idx_np).permute(1, 2, 0)
+
+
 class DetectorOnCodes(nn.Module):
     """A detector as a function of codes alone: ``z -> detector(z, geometry of decode(z))``.
 
     Everything that asks the detector about codes (the acquisition, the Newton projector, the handler's constraint,
     the cascade) takes this instead of the detector itself and stays unchanged: for a detector that reads the
     codes only it is the detector; for one that reads the mesh too it decodes, differentiably, the vertices the
-    geometry needs. The latent space is held outside the module's parameters and state (it is not trained here).
+    geometry needs, computes their pair features and the detector's embedding of them with the batch last
+    (:func:`vertex_decoder`, :meth:`PartGeometry.features_batch_last`,
+    :meth:`~neuralcol.nn.detector.CollisionDetector.embed_batch_last`; the same function as
+    ``detector(z, geometry_of_codes(...))`` to round-off, 3-4x faster). Without gradients on the CPU a batch runs in
+    blocks of ``inference_block`` rows (its intermediates then stay in cache). The latent space is held outside
+    the module's parameters and state (it is not trained here).
 
     Args:
         detector: a :class:`~neuralcol.nn.detector.CollisionDetector`.
         space: the latent space its codes belong to.
     """
 
+    inference_block: int = 128  # rows per block without gradients on the CPU (64-256 alike, 512+ slower; stop 48)
+
     def __init__(self, detector: nn.Module, space):
         super().__init__()
         self.detector = detector
         self._space = (space,)  # a tuple: not registered as a submodule
+        geometry = getattr(detector, "geometry", None)
+        self._decode = None if geometry is None else (vertex_decoder(space, geometry.vertex_index),)
 
     @property
     def space(self):
@@ -210,10 +256,22 @@ class DetectorOnCodes(nn.Module):
 
         return DetectorOnCodes(copy.deepcopy(self.detector, memo), self.space)
 
+    def embedding(self, z_all: torch.Tensor) -> torch.Tensor:
+        """Codes (B, D) -> the detector's geometry embedding (B, K, G) of the meshes they decode to."""
+        feats = self.detector.geometry.features_batch_last(self._decode[0](z_all))
+        return self.detector.embed_batch_last(feats.to(z_all.dtype))
+
     def forward(self, z_all: torch.Tensor):
-        if getattr(self.detector, "geometry", None) is None:  # (any module of codes alone passes through)
+        if self._decode is None:  # (any module of codes alone passes through)
             return self.detector(z_all)
-        return self.detector(z_all, geometry_of_codes(self.detector.geometry, self.space, z_all))
+        block = self.inference_block
+        if block and len(z_all) > block and z_all.device.type == "cpu" and not torch.is_grad_enabled():
+            outs = [self._one(z_all[i:i + block]) for i in range(0, len(z_all), block)]
+            return type(outs[0])(*(torch.cat(t) for t in zip(*outs)))
+        return self._one(z_all)
+
+    def _one(self, z_all: torch.Tensor):
+        return self.detector(z_all, embedding=self.embedding(z_all))
 
 
 def mesh_pair_features(geometry: PartGeometry, vertices: np.ndarray, block: int = 1024) -> np.ndarray:
