@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     run = load_run(args.run_dir)
     net = DetectorOnCodes(run.detector, run.space)
     print(f"{args.run_dir}: test set {path} ({len(test.z)} codes)", flush=True)
-    sa = measure_speed_accuracy(run.space, net, test, sa_cfg, cfg.labeling, metrics, None, args.run_dir)
+    sa = measure_speed_accuracy(run.space, net, test, sa_cfg, cfg.labeling, metrics, args.run_dir)
     print("\n".join(speed_accuracy_table(sa)))
     if args.out:
         args.out.write_text(json.dumps(sa, indent=1))

@@ -193,16 +193,23 @@ class TrainedRun(CascadeMixin, ResolveMixin):
         x = vertices_or_codes
         is_mesh = self._is_vertices(x)
         band = None if certify is None else self.band(certify)
-        z = self.encode(x) if is_mesh else self._codes(x)
-        # issue 41: a detector over code and mesh judges a mesh by its own geometry, not by its round trip's
-        v = self._vertices(x).to(self.device) if is_mesh and self.detector.geometry is not None else None
+        mesh = self._vertices(x) if is_mesh else None
+        z = self.space.encode(mesh) if is_mesh else self._codes(x)
+        # issue 41: a detector over code and mesh judges a mesh by its own geometry, not by its round trip's: the
+        # vertices its pair features read, float32, in blocks small enough to stay in cache
+        geometry = self.detector.geometry if is_mesh else None
+        v = None if geometry is None else mesh[:, geometry.vertex_index.cpu()].to(self.device, torch.float32)
         net = self.on_codes if fast is None or v is not None else self._fast_detector(fast)
+        step = batch_size if v is None else max(1, min(batch_size, DetectorOnCodes.inference_block))
         parts = []
         with torch.no_grad():
-            for start in range(0, len(z), batch_size):
-                zb = z[start:start + batch_size]
-                out = net(zb) if v is None else \
-                    self.detector(zb, self.detector.geometry_of_meshes(v[start:start + len(zb)].float()))
+            for start in range(0, len(z), step):
+                zb = z[start:start + step]
+                if v is None:
+                    out = net(zb)
+                else:
+                    feats = geometry.features_batch_last(v[start:start + len(zb)].permute(1, 2, 0).contiguous())
+                    out = self.detector(zb, embedding=self.detector.embed_batch_last(feats))
                 parts.append(Detection(out.prob, out.logit, smooth_max(out.s, self.temperature) * self.pd_unit,
                                        out.s * self.pd_unit))
         if not parts:
