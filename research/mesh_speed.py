@@ -3,8 +3,10 @@
     python -m research.mesh_speed RUN_DIR [--n 512] [--reps 3]
 
 Meshes: decoded codes of the run's U(Z) box, perturbed by 0.1 % of the diagonal (so they are meshes, not codes).
-Times ``run.detect(meshes)`` (encode + the mesh's pair features + the network, eager float32, one batch) and the exact
-labeler's verdict and full label (one mesh at a time, this process), torch on one thread; medians of ``reps``.
+Times ``run.detect(meshes)`` (encode + the mesh's pair features + the network, eager float32, one batch), the same
+compiled (``run.detect(meshes, fast="float32")``, :meth:`~neuralcol.nn.fast_inference.FastDetector.on_meshes`) and the
+exact labeler's verdict and full label (one mesh at a time, this process), torch on one thread; medians of ``reps``,
+the methods round-robin within each repetition.
 """
 
 from __future__ import annotations
@@ -39,20 +41,23 @@ def main() -> None:
     exact.verdict(meshes[0])
     exact.label(meshes[0])
 
-    def median(fn, reps):
-        ts = []
-        for _ in range(reps):
+    run.detect(v[:8], fast="float32")  # compiles
+    fns = {"detector": lambda: run.detect(v), "compiled": lambda: run.detect(v, fast="float32"),
+           "verdict": lambda: [exact.verdict(m) for m in meshes], "label": lambda: [exact.label(m) for m in meshes]}
+    per = {"detector": a.n, "compiled": a.n, "verdict": len(meshes), "label": len(meshes)}
+    times = {k: [] for k in fns}
+    for _ in range(a.reps):  # round-robin: a busy machine slows every method alike
+        for k, fn in fns.items():
             t0 = time.perf_counter()
             fn()
-            ts.append(time.perf_counter() - t0)
-        return float(np.median(ts))
-
-    t_det = median(lambda: run.detect(v), a.reps) / a.n
-    t_ver = median(lambda: [exact.verdict(m) for m in meshes], a.reps) / len(meshes)
-    t_lab = median(lambda: [exact.label(m) for m in meshes], a.reps) / len(meshes)
+            times[k].append((time.perf_counter() - t0) / per[k])
+    t = {k: float(np.median(v)) for k, v in times.items()}
     out = {"run": a.run_dir, "inputs": run.metrics["detector"].get("inputs", "latent"), "n": a.n,
-           "detector_us_per_mesh": 1e6 * t_det, "exact_verdict_us": 1e6 * t_ver, "exact_label_us": 1e6 * t_lab,
-           "x_verdict": t_ver / t_det, "x_label": t_lab / t_det, "threads": torch.get_num_threads()}
+           "detector_us_per_mesh": 1e6 * t["detector"], "compiled_us_per_mesh": 1e6 * t["compiled"],
+           "exact_verdict_us": 1e6 * t["verdict"], "exact_label_us": 1e6 * t["label"],
+           "x_verdict": t["verdict"] / t["detector"], "x_label": t["label"] / t["detector"],
+           "compiled_x_verdict": t["verdict"] / t["compiled"], "compiled_x_label": t["label"] / t["compiled"],
+           "threads": torch.get_num_threads()}
     print(json.dumps(out, indent=2))
     run.close()
 

@@ -271,6 +271,16 @@ def test_fast_detector_reads_the_decoded_geometry():
     fast = FastDetector(DetectorOnCodes(det, space), "float32", compile=False, block=16)
     with torch.no_grad():
         torch.testing.assert_close(fast(z).logit, DetectorOnCodes(det, space)(z).logit, rtol=1e-5, atol=1e-6)
+    # meshes given whole (40 rows: blocks of 16, the last padded): the detector on the meshes' own features
+    meshes = space.decode(z.double()) + 0.05 * torch.randn(40, 8, 3, dtype=torch.float64)
+    with torch.no_grad():
+        expect = det(z, det.geometry_of_meshes(meshes).float()).logit
+        got = fast.on_meshes(z, meshes[:, det.geometry.vertex_index]).logit
+    torch.testing.assert_close(got, expect, rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="vertices_read has shape"):
+        fast.on_meshes(z, meshes[:, :3])
+    with pytest.raises(ValueError, match="codes only"):
+        FastDetector(CollisionDetector(2, 0, state_dim=6, hidden=8), compile=False).on_meshes(z, meshes)
 
 
 def test_a_copy_of_the_detector_on_codes_shares_the_space():

@@ -95,6 +95,7 @@ class FastDetector:
         net = net.detector if self._space is not None else net
         self._geometry = None if net.geometry is None else copy.deepcopy(net.geometry).eval()
         self._decode = None if self._geometry is None else vertex_decoder(self._space, self._geometry.vertex_index)
+        self._mesh_fn = None  # on_meshes: compiled on first use
         self.net = copy.deepcopy(net).eval().to(self.dtype)
         for p in self.net.parameters():
             p.requires_grad_(False)
@@ -135,6 +136,11 @@ class FastDetector:
         out = self.net._forward(z.to(self.dtype))
         return out.prob.float(), out.logit.float(), out.s.float()
 
+    def _block_mesh_forward(self, z: torch.Tensor, v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        feats = self._geometry.features_batch_last(v.permute(1, 2, 0))  # (3 P, B) float32
+        out = self.net._forward(z.to(self.dtype), embedding=self.net.embed_batch_last(feats.to(self.dtype)))
+        return out.prob.float(), out.logit.float(), out.s.float()
+
     def padded_rows(self, rows: int) -> int:
         """Rows a block of ``rows`` (<= block) is padded to: ``block`` or the next power of two >= max(rows, 16)."""
         return min(self.block, max(MIN_PADDED_ROWS, 1 << (int(rows) - 1).bit_length()))
@@ -142,22 +148,47 @@ class FastDetector:
     def __call__(self, z_all: torch.Tensor) -> DetectorOutput:
         """Codes (B, D) (any float dtype, moved to the detector's device) -> probabilities, logits and S_i in
         float32, computed block by block (then the rows within ``recheck_band`` of 0 again in float32)."""
+        z = self._checked_codes(z_all)
+        return self._rechecked(self._blocks(z), lambda near: self._recheck(z[near]))
+
+    def on_meshes(self, z_all: torch.Tensor, vertices_read: torch.Tensor) -> DetectorOutput:
+        """A detector over code and mesh on meshes given whole: their codes (B, D) (``encode(mesh)``) and the
+        vertices its pair features read, ``mesh[:, geometry.vertex_index]`` (B, V', 3) -> what ``detector(z,
+        pair features of the mesh)`` gives, compiled like the code path (its own graph, built on first use)."""
+        if self._geometry is None:
+            raise ValueError("this detector reads the codes only: call it on the codes")
+        z = self._checked_codes(z_all)
+        n_read = len(self._geometry.vertex_index)
+        if vertices_read.ndim != 3 or tuple(vertices_read.shape[1:]) != (n_read, 3) or len(vertices_read) != len(z):
+            raise ValueError(f"vertices_read has shape {tuple(vertices_read.shape)}, expected ({len(z)}, {n_read}, 3)")
+        v = vertices_read.to(self.device, torch.float32)
+        if self._mesh_fn is None:
+            self._mesh_fn = (torch.compile(self._block_mesh_forward, dynamic=False) if self.compiled
+                             else self._block_mesh_forward)
+        return self._rechecked(self._blocks(z, v), lambda near: self._recheck.on_meshes(z[near], v[near]))
+
+    def _checked_codes(self, z_all: torch.Tensor) -> torch.Tensor:
         if z_all.ndim != 2 or z_all.shape[1] != self.latent_dim:
             raise ValueError(f"z_all has shape {tuple(z_all.shape)}, expected (B, {self.latent_dim})")
-        z = z_all.to(self.device, torch.float32)
-        out = self._blocks(z)
-        if self._recheck is None or len(z) == 0:
+        return z_all.to(self.device, torch.float32)
+
+    def _rechecked(self, out: DetectorOutput, exact_of) -> DetectorOutput:
+        """``out`` with its rows within ``recheck_band`` of logit 0 replaced by ``exact_of(rows)`` (float32)."""
+        if self._recheck is None or len(out.logit) == 0:
             return out
         near = torch.nonzero(out.logit.abs() < self.recheck_band).flatten()
-        self.rechecked_fraction = len(near) / len(z)
+        self.rechecked_fraction = len(near) / len(out.logit)
         if len(near):
-            exact = self._recheck(z[near])
+            exact = exact_of(near)
             with torch.inference_mode():  # the outputs are inference tensors
                 for full, part in zip(out, exact):
                     full[near] = part
         return out
 
-    def _blocks(self, z: torch.Tensor) -> DetectorOutput:
+    def _blocks(self, z: torch.Tensor, vertices: torch.Tensor | None = None) -> DetectorOutput:
+        """Block by block through the compiled function: codes (``_fn``) or codes and the meshes' vertices
+        (``_mesh_fn``); a short last block is padded to one of few shapes (codes: the box centre; vertices: the
+        block's first mesh) and the padding's outputs dropped."""
         n = len(z)
         outs = []
         with torch.inference_mode():
@@ -167,7 +198,13 @@ class FastDetector:
                 size = self.padded_rows(rows)
                 if size > rows:  # few compiled shapes: pad with the box centre
                     zb = torch.cat([zb, self._pad.expand(size - rows, -1)])
-                outs.append(tuple(t[:rows] for t in self._fn(zb)))
+                if vertices is None:
+                    outs.append(tuple(t[:rows] for t in self._fn(zb)))
+                    continue
+                vb = vertices[start:start + rows]
+                if size > rows:
+                    vb = torch.cat([vb, vb[:1].expand(size - rows, -1, -1)])
+                outs.append(tuple(t[:rows] for t in self._mesh_fn(zb, vb)))
         if not outs:
             empty = z.new_zeros(0)
             return DetectorOutput(empty, empty, z.new_zeros(0, self.net.n_components))
