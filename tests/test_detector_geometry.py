@@ -373,3 +373,30 @@ def test_operating_point_is_set_on_its_rows_and_folded_into_the_bias(tmp_path, w
             operating_point(det, space, None, cfg, "key", tmp_path, rows, {}, plain)
         plain.close()
     store.close()
+
+
+def test_full_labels_of_the_realistic_training_meshes_are_labeled_once(tmp_path):
+    """A second run of the same meshes reads their full labels from the samples folder; other meshes are labeled."""
+    from types import SimpleNamespace
+
+    from neuralcol.stages.geometry import full_labels
+
+    calls = []
+
+    class Pool:
+        desc = ""
+
+        def label_report(self, v):
+            calls.append(len(v))
+            return SimpleNamespace(ok=np.array([True, False, True]),
+                                   labels=SimpleNamespace(pd=np.array([0.1, np.nan, -0.2]), pd_sub=np.ones((3, 2))))
+
+    v = np.random.default_rng(0).normal(size=(3, 8, 3))
+    first = full_labels(Pool(), v, tmp_path)
+    again = full_labels(Pool(), v, tmp_path)
+    assert calls == [3]
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+    assert first[0].tolist() == [True, False, True] and first[2].shape == (3, 2)
+    full_labels(Pool(), v + 1e-9, tmp_path)
+    assert calls == [3, 3]
