@@ -65,6 +65,10 @@ def test_detect_encode_decode_label(trained):
                                trained.detector(trained.encode(verts)).prob)
     one = trained.detect(verts[0].numpy())  # one (V, 3) numpy mesh
     assert one.prob.shape == (1,)
+    bad = verts.clone()
+    bad[1, 3, 0] = float("nan")
+    with pytest.raises(UserInputError, match="non-finite coordinates"):  # checked on the codes, named by the mesh
+        trained.detect(bad)
     # outside_box: inside Z for codes from U(Z); an entry past the box's edge by a hair flags the row only
     assert not trained.detect(trained.space.sample(8)).outside_box.any()
     lo, hi = trained.space.box_lo, trained.space.box_hi

@@ -128,14 +128,15 @@ class TrainedRun(CascadeMixin, ResolveMixin):
                 f"K={self.space.n_parts}, device={self.device})")
 
     # ------------------------------------------------------------------ inputs
-    def _vertices(self, x, name: str = "vertices") -> torch.Tensor:
-        """(B, V, 3) or (V, 3) meshes -> (B, V, 3) float64 CPU tensor."""
+    def _vertices(self, x, name: str = "vertices", check_finite: bool = True) -> torch.Tensor:
+        """(B, V, 3) or (V, 3) meshes -> (B, V, 3) float64 CPU tensor (``check_finite=False``: the caller checks
+        what it derives from them instead, saving a pass over the meshes)."""
         v = torch.as_tensor(np.asarray(x) if not torch.is_tensor(x) else x).detach()
         v = v[None] if v.ndim == 2 else v
         if v.ndim != 3 or v.shape[1:] != (self.n_vertices, 3):
             raise UserInputError(f"{name} have shape {tuple(v.shape)}; this run's meshes are ({self.n_vertices}, 3) "
                                  f"(give (B, {self.n_vertices}, 3) or one ({self.n_vertices}, 3) mesh)")
-        if not bool(torch.isfinite(v.sum())) and not bool(torch.isfinite(v).all()):  # (the sum: one cheap pass)
+        if check_finite and not bool(torch.isfinite(v.sum())) and not bool(torch.isfinite(v).all()):
             raise UserInputError(f"{name}: non-finite coordinates")
         return v.to("cpu", torch.float64)
 
@@ -195,8 +196,15 @@ class TrainedRun(CascadeMixin, ResolveMixin):
         x = vertices_or_codes
         is_mesh = self._is_vertices(x)
         band = None if certify is None else self.band(certify)
-        mesh = self._vertices(x) if is_mesh else None
-        z = self.space.encode(mesh) if is_mesh else self._codes(x)
+        mesh = self._vertices(x, check_finite=False) if is_mesh else None
+        try:
+            z = self.space.encode(mesh) if is_mesh else self._codes(x)
+        except (ValueError, RuntimeError, np.linalg.LinAlgError):
+            if is_mesh:
+                self._vertices(x)  # a non-finite coordinate: the one clear line
+            raise
+        if is_mesh and not bool(torch.isfinite(z).all()):  # a non-finite coordinate reaches every code it enters
+            self._vertices(x)  # (raises, naming it)
         # issue 41: a detector over code and mesh judges a mesh by its own geometry, not by its round trip's: the
         # vertices its pair features read, float32, in blocks small enough to stay in cache
         geometry = self.detector.geometry if is_mesh else None
