@@ -183,7 +183,7 @@ class TrainedRun(CascadeMixin, ResolveMixin):
         ~1.9x, no label flipped on SCAPE's test sets). The first call with a ``fast`` form compiles it (seconds);
         :class:`~neuralcol.nn.fast_inference.FastDetector` and docs/model_size.md have the measurements. Meshes given
         to a detector over code and mesh run the compiled mesh path (``FastDetector.on_meshes``): on SCAPE meshes
-        70 µs per mesh against 113 eager, 92x the exact full label (stop 48, ``python -m research.mesh_speed``).
+        59 µs per mesh against 104 eager, 110x the exact full label (stop 48, ``python -m research.mesh_speed``).
 
         ``certify``: None, or a target FNR in [0, 1): the certified cascade (docs/cascade.md). The band ``[lo, hi)``
         of that target (:meth:`band`, from the run's calibration set) decides which rows the exact labeler judges:
