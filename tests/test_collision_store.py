@@ -102,6 +102,17 @@ def test_pair_features_are_kept_with_their_rows_and_checked(tmp_path):
         np.testing.assert_allclose(rows.geometry, np.concatenate([g1, g2]).astype(np.float32))
         assert store.read([1, 5]).geometry.shape == (2, 3, 3) and len(store) == 6
         np.testing.assert_array_equal(rows.select(rows.round == 1).geometry, rows.geometry[4:])
+        # rows read alone from the file (indices in any order, or a mask) = the same rows of the whole store
+        for some in ([5, 1, 3], np.arange(6) % 2 == 1, []):
+            part, whole = store.read_rows(some), rows.select(np.unique(np.flatnonzero(some) if np.asarray(some).dtype
+                                                                      == bool else np.asarray(some, int)))
+            for a, b in zip(part, whole):
+                np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(store.column("round"), rows.round)
+        with pytest.raises(KeyError, match="no column 'nope'"):
+            store.column("nope")
+        with pytest.raises(IndexError, match="outside the 6 committed"):
+            store.read_rows([0, 6])
     with pytest.raises(StoreCorruptedError, match="3 contact pairs per row, expected 0"):
         CollisionStore(path, 6, 2)
     with CollisionStore(tmp_path / "plain.h5", 6, 2) as plain:

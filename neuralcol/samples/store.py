@@ -196,6 +196,31 @@ class CollisionStore:
             cols = {k: v[index] for k, v in cols.items()}
         return CollisionRows(**cols)
 
+    def column(self, name: str) -> np.ndarray:
+        """One committed column (``z``, ``origin``, ...), read alone (D_c's ``geometry`` can be GBs at the paper's
+        sizes; the other columns are small)."""
+        if name not in self._columns():
+            raise KeyError(f"{self.path}: no column {name!r} (has {sorted(self._columns())})")
+        try:
+            return self._h5[name][:len(self)]
+        except OSError as exc:
+            raise StoreCorruptedError(f"{self.path}: its data is corrupted ({exc}); restore it from a backup, or "
+                                      "move it away to start a new D_c (a run then restarts from round 0)") from exc
+
+    def read_rows(self, rows) -> CollisionRows:
+        """The committed rows ``rows`` (indices or a boolean mask over the committed rows), read from the file
+        row by row selection (not the whole store), in increasing order."""
+        rows = np.asarray(rows)
+        idx = np.flatnonzero(rows) if rows.dtype == bool else np.unique(rows.astype(np.int64))
+        if len(idx) and (idx[0] < 0 or idx[-1] >= len(self)):
+            raise IndexError(f"{self.path}: rows outside the {len(self)} committed ones")
+        try:
+            cols = {name: self._h5[name][idx] if len(idx) else self._h5[name][:0] for name in self._columns()}
+        except OSError as exc:
+            raise StoreCorruptedError(f"{self.path}: its data is corrupted ({exc}); restore it from a backup, or "
+                                      "move it away to start a new D_c (a run then restarts from round 0)") from exc
+        return CollisionRows(**cols)
+
     def split_mask(self) -> np.ndarray:
         """(N,) bool, True for validation rows (stable as the store grows)."""
         return (np.arange(len(self)) % VAL_EVERY) == VAL_EVERY - 1

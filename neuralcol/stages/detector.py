@@ -137,20 +137,22 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
         return None
     on_codes = DetectorOnCodes(net, space)
     where = str(det.get("operating_set", "calibration"))
-    rows = store.read() if store is not None and where in ("realistic", "auto") else None
-    pick = None if rows is None else (rows.origin == Origin.REALISTIC) & store.split_mask()
+    rows = None
+    if store is not None and where in ("realistic", "auto"):  # only the realistic validation rows are read
+        rows = store.read_rows((store.column("origin") == Origin.REALISTIC) & store.split_mask())
+    found = rows is not None and rows.geometry is not None and len(rows.z) > 0
     if where == "auto":  # the realistic rows where there are (a detector over code and mesh), else the calibration set
-        where = "realistic" if rows is not None and rows.geometry is not None and pick.any() else "calibration"
+        where = "realistic" if found else "calibration"
     if where == "realistic":
-        if rows is None or rows.geometry is None or not pick.any():
+        if not found:
             raise UserInputError("detector.operating_set=realistic needs realistic training meshes among D_c's rows "
                                  "(detector.inputs=code_and_mesh with detector.geometry.realistic_rows=true); use "
                                  "detector.operating_set=calibration")
-        y = np.asarray(rows.collides[pick], bool)
+        y = np.asarray(rows.collides, bool)
         with torch.no_grad():
             was = net.training
             net.eval()
-            logit = net(torch.as_tensor(rows.z[pick]), torch.as_tensor(rows.geometry[pick])).logit.numpy()
+            logit = net(torch.as_tensor(rows.z), torch.as_tensor(rows.geometry)).logit.numpy()
             net.train(was)
     elif where == "calibration":
         from neuralcol.stages.cascade import calibration_set
