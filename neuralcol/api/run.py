@@ -209,7 +209,7 @@ class TrainedRun(CascadeMixin, ResolveMixin):
         # vertices its pair features read, float32, in blocks small enough to stay in cache
         geometry = self.detector.geometry if is_mesh else None
         v = None if geometry is None else mesh[:, geometry.vertex_index.cpu()].to(self.device, torch.float32)
-        net = self.on_codes if fast is None or v is not None else self._fast_detector(fast)
+        net = self.on_codes if fast is None else self._fast_detector(fast)
         step = batch_size if v is None or fast is not None else max(1, min(batch_size, DetectorOnCodes.inference_block))
         parts = []
         with torch.no_grad():
@@ -218,10 +218,10 @@ class TrainedRun(CascadeMixin, ResolveMixin):
                 if v is None:
                     out = net(zb)
                 elif fast is not None:
-                    out = self._fast_detector(fast).on_meshes(zb, v[start:start + len(zb)])
+                    out = net.on_meshes(zb, v[start:start + len(zb)])
                 else:
-                    feats = geometry.features_batch_last(v[start:start + len(zb)].permute(1, 2, 0).contiguous())
-                    out = self.detector(zb, embedding=self.detector.embed_batch_last(feats))
+                    vb = v[start:start + len(zb)].permute(1, 2, 0).contiguous()
+                    out = self.detector(zb, embedding=self.detector.embed_vertices_batch_last(vb))
                 parts.append(Detection(out.prob, out.logit, smooth_max(out.s, self.temperature) * self.pd_unit,
                                        out.s * self.pd_unit))
         if not parts:

@@ -233,6 +233,11 @@ class CollisionDetector(nn.Module):
         x = self.geometry.per_part_batch_last(feats)  # (K, 3 M, B)
         return F.celu(torch.bmm(self.slot_w.transpose(1, 2), x).permute(2, 0, 1) + self.slot_b)
 
+    def embed_vertices_batch_last(self, x: torch.Tensor) -> torch.Tensor:
+        """The vertices its pair features read, batch last (V', 3, B) -> the geometry embedding (B, K, G): the
+        features in ``x``'s dtype, the embedding in the detector's."""
+        return self.embed_batch_last(self.geometry.features_batch_last(x).to(self.center.dtype))
+
     def geometry_of_meshes(self, vertices: torch.Tensor) -> torch.Tensor:
         """Whole meshes (B, V, 3) -> the pair features (B, P, 3) this detector reads."""
         return self.geometry.pair_features(vertices)

@@ -130,15 +130,14 @@ class FastDetector:
 
     def _block_forward(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         if self._geometry is not None:
-            feats = self._geometry.features_batch_last(self._decode(z.float()))  # (3 P, B) float32
-            out = self.net._forward(z.to(self.dtype), embedding=self.net.embed_batch_last(feats.to(self.dtype)))
+            embedding = self.net.embed_vertices_batch_last(self._decode(z.float()))  # features in float32
+            out = self.net._forward(z.to(self.dtype), embedding=embedding)
             return out.prob.float(), out.logit.float(), out.s.float()
         out = self.net._forward(z.to(self.dtype))
         return out.prob.float(), out.logit.float(), out.s.float()
 
     def _block_mesh_forward(self, z: torch.Tensor, v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        feats = self._geometry.features_batch_last(v.permute(1, 2, 0))  # (3 P, B) float32
-        out = self.net._forward(z.to(self.dtype), embedding=self.net.embed_batch_last(feats.to(self.dtype)))
+        out = self.net._forward(z.to(self.dtype), embedding=self.net.embed_vertices_batch_last(v.permute(1, 2, 0)))
         return out.prob.float(), out.logit.float(), out.s.float()
 
     def padded_rows(self, rows: int) -> int:

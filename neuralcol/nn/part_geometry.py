@@ -258,8 +258,7 @@ class DetectorOnCodes(nn.Module):
 
     def embedding(self, z_all: torch.Tensor) -> torch.Tensor:
         """Codes (B, D) -> the detector's geometry embedding (B, K, G) of the meshes they decode to."""
-        feats = self.detector.geometry.features_batch_last(self._decode[0](z_all))
-        return self.detector.embed_batch_last(feats.to(z_all.dtype))
+        return self.detector.embed_vertices_batch_last(self._decode[0](z_all))
 
     def forward(self, z_all: torch.Tensor):
         if self._decode is None:  # (any module of codes alone passes through)
