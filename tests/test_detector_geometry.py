@@ -307,6 +307,26 @@ def test_features_of_the_few_vertices_equal_those_of_the_whole_mesh():
     torch.testing.assert_close(geo.features_of_vertices(v[:, geo.vertex_index]), whole)
 
 
+def test_mean_fnr_threshold_is_the_largest_threshold_whose_mean_fnr_meets_the_target():
+    from neuralcol.metrics.detection import fnr_threshold, mean_fnr_threshold
+
+    rng = np.random.default_rng(5)
+    ya, yb = rng.random(300) < 0.5, rng.random(40) < 0.4
+    la = np.round(rng.normal(size=300) + 2.0 * ya, 1)  # rounded: ties among the colliding logits
+    lb = rng.normal(size=40) + 1.0 * yb - 1.0
+    every = np.sort(np.concatenate([la[ya], lb[yb]]))
+    for target in (0.0, 0.05, 0.1, 0.25):
+        t = mean_fnr_threshold([(la, ya), (lb, yb)], target)
+        mean = lambda u: 0.5 * (np.mean(la[ya] <= u) + np.mean(lb[yb] <= u))  # noqa: E731
+        assert mean(t) <= target + 1e-12
+        above = every[every > t]  # brute force: the next colliding logit up already misses more than the target
+        assert len(above) == 0 or mean(above[0]) > target
+    assert mean_fnr_threshold([(la, ya)], 0.1) == fnr_threshold(la, ya, 0.1)
+    assert mean_fnr_threshold([(la, ya), (lb, np.zeros(40, bool))], 0.1) == fnr_threshold(la, ya, 0.1)
+    with pytest.raises(ValueError, match="no colliding row"):
+        mean_fnr_threshold([(la, np.zeros(300, bool))], 0.1)
+
+
 def test_fnr_threshold_misses_at_most_the_target_and_the_shift_moves_the_decision():
     from neuralcol.metrics.detection import fnr_threshold
 
@@ -330,7 +350,7 @@ def test_fnr_threshold_misses_at_most_the_target_and_the_shift_moves_the_decisio
     torch.testing.assert_close(det(z).logit.detach(), before - 0.7)
 
 
-@pytest.mark.parametrize("where", ["realistic", "calibration"])
+@pytest.mark.parametrize("where", ["realistic", "calibration", "both"])
 def test_operating_point_is_set_on_its_rows_and_folded_into_the_bias(tmp_path, where, monkeypatch):
     """detector.operating_fnr on the realistic validation rows of D_c (their stored features) or on the calibration
     set (codes, decoded): the threshold misses at most the target there, it moves into the output bias, and the last
@@ -361,15 +381,20 @@ def test_operating_point_is_set_on_its_rows_and_folded_into_the_bias(tmp_path, w
     before = det(torch.as_tensor(z), torch.as_tensor(feats)).logit.detach()
     op = operating_point(det, space, None, cfg, "key", tmp_path, rows, last, store)
     assert op["operating_set"] == where and op["calibration"]["fnr"] <= 0.1
-    n_cal = int(store.split_mask().sum()) if where == "realistic" else n
-    assert op["calibration"]["n"] == n_cal
+    n_cal = {"realistic": int(store.split_mask().sum()), "calibration": n, "both": int(store.split_mask().sum()) + n}
+    assert op["calibration"]["n"] == n_cal[where]
+    if where == "both":  # the mean of the two sets' FNRs is what the threshold bounds
+        val = store.split_mask()
+        b = before.numpy()
+        means = 0.5 * (np.mean(b[val & collides] <= op["threshold"]) + np.mean(b[collides] <= op["threshold"]))
+        assert op["calibration"]["fnr"] == pytest.approx(means)
     torch.testing.assert_close(det(torch.as_tensor(z), torch.as_tensor(feats)).logit.detach(),
                                before - op["threshold"])
     assert last["at_logit_0"] == {"accuracy": 0.5, "fnr": 0.5} and last["threshold"] == op["threshold"]
     assert last["fnr"] == pytest.approx(float(np.mean(before.numpy()[collides] <= op["threshold"])))
-    if where == "realistic":
+    if where in ("realistic", "both"):
         plain = CollisionStore(tmp_path / "plain.h5", 2, 2)
-        with pytest.raises(UserInputError, match="operating_set=realistic needs"):
+        with pytest.raises(UserInputError, match=f"operating_set={where} needs"):
             operating_point(det, space, None, cfg, "key", tmp_path, rows, {}, plain)
         plain.close()
     store.close()

@@ -52,12 +52,14 @@ def test_shipped_configs_are_valid(preset):
     ("autoencoder.level1.code_noise=-0.1", "autoencoder.level1.code_noise=-0.1: must be >= 0"),
     ("autoencoder.level2.interp_ratio=-1", "autoencoder.level2.interp_ratio=-1: must be >= 0"),
     ("autoencoder.interp_t=[1.0,0.0]", "autoencoder.interp_t"),
+    ("detector.operating_set=codes", "detector.operating_set='codes': use auto, calibration, realistic or both"),
+    ("detector.inputs=latent detector.operating_set=both", "detector.operating_set='both': needs detector.inputs"),
 ])
 def test_bad_settings_are_named(override, key):
-    problems = config_problems(_compose([override]))
+    problems = config_problems(_compose(override.split()))
     assert any(p.startswith(key) for p in problems), problems
     with pytest.raises(UserInputError, match="bad configuration"):
-        validate_run_config(_compose([override]))
+        validate_run_config(_compose(override.split()))
 
 
 def test_several_problems_reported_together():

@@ -50,3 +50,35 @@ def fnr_threshold(logits: np.ndarray, collides: np.ndarray, target: float) -> fl
     if k == 0:
         return float(pos[0] - 1e-3 * max(1.0, abs(pos[0])))
     return float(0.5 * (pos[k - 1] + pos[k]))
+
+
+def mean_fnr_threshold(sets: list[tuple[np.ndarray, np.ndarray]], target: float) -> float:
+    """The largest logit threshold ``t`` at which the **mean** over ``sets`` of each set's FNR (``logit > t`` missing
+    its colliding rows) is at most ``target``: every set weighs the same whatever its size. One set: exactly
+    :func:`fnr_threshold`. Used by ``detector.operating_set: both`` (realistic rows and calibration codes, issue 41).
+
+    Args:
+        sets: ``[(logits (N_j,), collides (N_j,) bool), ...]``; a set without colliding rows is skipped.
+        target: in [0, 1).
+
+    Raises:
+        ValueError: ``target`` outside [0, 1) or no colliding row in any set.
+    """
+    if not 0.0 <= float(target) < 1.0:
+        raise ValueError(f"target FNR {target} must lie in [0, 1)")
+    pos = [np.asarray(lg, np.float64)[np.asarray(y, bool)] for lg, y in sets]
+    pos = [p for p in pos if len(p)]
+    if not pos:
+        raise ValueError("no colliding row: the FNR of a threshold is undefined")
+    if len(pos) == 1:
+        return fnr_threshold(pos[0], np.ones(len(pos[0]), bool), target)
+    logit = np.concatenate(pos)
+    weight = np.concatenate([np.full(len(p), 1.0 / (len(p) * len(pos))) for p in pos])
+    order = np.argsort(logit, kind="stable")
+    logit, cum = logit[order], np.cumsum(weight[order])
+    k = int(np.searchsorted(cum, float(target) + 1e-12, side="right"))  # rows that may fall at or below t
+    while 0 < k < len(logit) and logit[k - 1] == logit[k]:  # ties move together
+        k -= 1
+    if k == 0:
+        return float(logit[0] - 1e-3 * max(1.0, abs(logit[0])))
+    return float(0.5 * (logit[k - 1] + logit[k]))

@@ -23,7 +23,7 @@ from hydra.utils import instantiate
 from neuralcol.active.rounds import Schedule
 from neuralcol.errors import UserInputError
 from neuralcol.lit.detector import DetectorLitModule, detector_module
-from neuralcol.metrics.detection import detection_metrics, fnr_threshold
+from neuralcol.metrics.detection import detection_metrics, fnr_threshold, mean_fnr_threshold
 from neuralcol.metrics.tensorboard import log_round_examples
 from neuralcol.nn.detector import CollisionDetector, build_detector, net_widths, save_detector
 from neuralcol.nn.part_geometry import DetectorOnCodes, mesh_pair_features
@@ -124,12 +124,15 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
       from the test set and D_c;
     * ``realistic``: the realistic training meshes among D_c's validation rows (never trained on; a detector over
       code and mesh with ``geometry.realistic_rows``), judged by their own geometry: real meshes' operating point;
+    * ``both``: the realistic validation rows and the calibration set, the **mean** of their two FNRs at most
+      ``operating_fnr`` (each set weighs the same; :func:`~neuralcol.metrics.detection.mean_fnr_threshold`);
     * ``auto``: ``realistic`` where D_c holds such rows, else ``calibration``.
 
     The last round's test metrics become those at the threshold; the ones at logit 0 stay under ``at_logit_0``.
 
     Returns:
         ``{"operating_fnr", "operating_set", "threshold", "calibration": {n, fnr, fpr, accuracy at the threshold}}``
+        (``both``: n and accuracy over the two sets pooled, fnr the mean of their two)
         or None.
     """
     target = det.get("operating_fnr")
@@ -137,32 +140,33 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
         return None
     on_codes = DetectorOnCodes(net, space)
     where = str(det.get("operating_set", "calibration"))
+    if where not in ("auto", "calibration", "realistic", "both"):
+        raise UserInputError(f"detector.operating_set={where!r}; use auto, calibration, realistic or both")
     rows = None
-    if store is not None and where in ("realistic", "auto"):  # only the realistic validation rows are read
+    if store is not None and where in ("realistic", "auto", "both"):  # only the realistic validation rows are read
         rows = store.read_rows((store.column("origin") == Origin.REALISTIC) & store.split_mask())
     found = rows is not None and rows.geometry is not None and len(rows.z) > 0
     if where == "auto":  # the realistic rows where there are (a detector over code and mesh), else the calibration set
         where = "realistic" if found else "calibration"
-    if where == "realistic":
+    sets = []
+    if where in ("realistic", "both"):
         if not found:
-            raise UserInputError("detector.operating_set=realistic needs realistic training meshes among D_c's rows "
+            raise UserInputError(f"detector.operating_set={where} needs realistic training meshes among D_c's rows "
                                  "(detector.inputs=code_and_mesh with detector.geometry.realistic_rows=true); use "
                                  "detector.operating_set=calibration")
-        y = np.asarray(rows.collides, bool)
         with torch.no_grad():
             was = net.training
             net.eval()
             logit = net(torch.as_tensor(rows.z), torch.as_tensor(rows.geometry)).logit.numpy()
             net.train(was)
-    elif where == "calibration":
+        sets.append((logit, np.asarray(rows.collides, bool)))
+    if where in ("calibration", "both"):
         from neuralcol.stages.cascade import calibration_set
 
         calib, _, _ = calibration_set(oracle, det, latent_key, cache_dir)
-        y = np.asarray(calib.collides, bool)
-        logit = predict_test_set(on_codes, calib)["logit"]
-    else:
-        raise UserInputError(f"detector.operating_set={where!r}; use auto, calibration or realistic")
-    t = fnr_threshold(logit, y, float(target))
+        sets.append((predict_test_set(on_codes, calib)["logit"], np.asarray(calib.collides, bool)))
+    t = fnr_threshold(*sets[0], float(target)) if len(sets) == 1 else mean_fnr_threshold(sets, float(target))
+    logit, y = np.concatenate([s_[0] for s_ in sets]), np.concatenate([s_[1] for s_ in sets])
     net.shift_decision(t)
     keys = ("accuracy", "fnr", "fpr", "balanced_accuracy", "base_rate", "majority_accuracy")
     at0 = {k: last_round[k] for k in keys if k in last_round}
@@ -171,6 +175,8 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
     last_round["at_logit_0"] = at0
     last_round["threshold"] = t
     cal = detection_metrics(logit > t, y)
+    if len(sets) > 1:  # both: the FNR that was bounded, the mean of the two sets'
+        cal["fnr"] = float(np.mean([np.mean(lg[yy] <= t) for lg, yy in sets]))
     return {"operating_fnr": float(target), "operating_set": where, "threshold": t,
             "calibration": {"n": int(len(y)), **{k: cal[k] for k in ("accuracy", "fnr", "fpr")}}}
 

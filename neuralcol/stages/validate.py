@@ -56,11 +56,12 @@ def config_problems(cfg: DictConfig) -> list[str]:
     if _get(cfg, "detector.operating_fnr") is not None:
         need("detector.operating_fnr", lambda v: 0 <= float(v) < 1, "must lie in [0, 1) (null: the paper's p > 0.5)")
     if _get(cfg, "detector.operating_set") is not None:
-        need("detector.operating_set", lambda v: v in ("auto", "calibration", "realistic"),
-             "use auto, calibration or realistic")
-        if _get(cfg, "detector.operating_set") == "realistic" and _get(cfg, "detector.operating_fnr") is not None \
+        need("detector.operating_set", lambda v: v in ("auto", "calibration", "realistic", "both"),
+             "use auto, calibration, realistic or both")
+        if _get(cfg, "detector.operating_set") in ("realistic", "both") and _get(cfg, "detector.operating_fnr") is not None \
                 and _get(cfg, "detector.inputs") != "code_and_mesh":
-            problems.append("detector.operating_set='realistic': needs detector.inputs=code_and_mesh (the realistic "
+            problems.append(f"detector.operating_set={_get(cfg, 'detector.operating_set')!r}: needs "
+                            "detector.inputs=code_and_mesh (the realistic "
                             "training meshes are rows of its D_c only); use detector.operating_set=calibration")
     if _get(cfg, "detector.inputs") == "code_and_mesh":
         for key in ("detector.geometry.per_part", "detector.geometry.select_codes", "detector.geometry.hidden"):
