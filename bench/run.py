@@ -34,6 +34,7 @@ from bench import (
     pipeline,
     pool,
     training,
+    training_labels,
 )
 from bench.context import HERE, BenchContext, scape_config
 from bench.markdown import write_markdown
@@ -41,7 +42,8 @@ from bench.markdown import write_markdown
 # name (--only, results.json "sections") -> module whose measure(ctx) returns {key: summary}; run in this order
 BENCHES = {"acap": acap, "labeler": labeler, "labeler_body": labeler_body, "pool": pool, "pipeline": pipeline,
            "dask": dask_pool, "fcl": fcl_backend, "neural": neural,
-           "cascade": cascade, "training": training, "memory": memory, "gpu": gpu, "export": export}
+           "cascade": cascade, "training": training, "training_labels": training_labels, "memory": memory,
+           "gpu": gpu, "export": export}
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:

@@ -35,6 +35,9 @@ def test_projection_quality_by_hand():
     assert q["moved_level1"] == pytest.approx(0.075) and q["moved_level2"] == pytest.approx(0.5)
     assert q["moved_ratio"] == pytest.approx(0.15)
     assert np.isnan(boundary_shares(np.zeros(0), 1.0)["within_eps"])
+    # labels for training, clearances capped at 1.5: |PD| <= 2 is not known for a free sample, |PD| <= 1 is
+    capped = boundary_shares(np.array([0.5, -1.5, -0.2]), 1.0, clearance_limit=1.5)
+    assert capped["within_eps"] == pytest.approx(2 / 3) and np.isnan(capped["within_2eps"])
     with pytest.raises(ValueError):
         boundary_shares(pd, 0.0)
 

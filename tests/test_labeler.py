@@ -286,3 +286,49 @@ def test_build_labeler_from_the_labeling_group(tube):
         build_labeler(labeling("+labeling.labeler.tol=1"), faces, verts)
     with pytest.raises(ValueError, match=r"labeling.backend='fcl': .* choose a backend with labeling=fcl"):
         build_labeler(labeling("labeling.backend=fcl"), faces, verts)
+
+
+# ------------------------------------------------------------------------------------------ labels for training
+
+
+def _limited_cases(scape_np):
+    """SCAPE interpolations (both classes) with 4 parts, and the labelers pruned and reference."""
+    verts, faces = scape_np
+    rng = np.random.default_rng(3)
+    part = (verts[0][:, 1] > np.median(verts[0][:, 1])).astype(np.int64) * 2 + (verts[0][:, 0] > 0)
+    meshes = []
+    for _ in range(24):
+        i, j = rng.choice(69, 2, replace=False)
+        meshes.append(verts[i] + rng.uniform(-0.8, 1.8) * (verts[j] - verts[i]))
+    return meshes, ExactLabeler(faces, verts[0], partition=part)
+
+
+@pytest.mark.parametrize("floor", [0.05, 0.25, 0.6, 2.0])
+def test_limited_label_is_the_full_label_with_clearances_capped(scape_np, floor):
+    """label_limited(v, L) == max(PD_i, -L) of the full label bit for bit, verdict and counted pairs equal, and the
+    detector's clipped targets (clip(pd / cap, -floor, 0.25)) equal the full label's: pruned and reference paths."""
+    from neuralcol.collision.labeler import limit_clearance
+    from neuralcol.samples.oracle import training_clearance_limit
+
+    meshes, lab = _limited_cases(scape_np)
+    limit = training_clearance_limit(lab.cap, -floor)
+    full = [lab.label(v) for v in meshes]
+    assert 0 < np.mean([f.collides for f in full]) < 1
+    assert any((f.pd_sub < -limit).any() for f in full) or floor >= 1.0, "some clearance beyond the limit"
+    for prune in (True, False):
+        lab.prune = prune
+        for v, f in zip(meshes, full):
+            got = lab.label_limited(v, limit)
+            want = limit_clearance(f, limit)
+            assert (got.collides, got.n_pairs, got.pd) == (want.collides, want.n_pairs, want.pd)
+            np.testing.assert_array_equal(got.pd_sub, want.pd_sub)
+            clip = lambda x: np.clip(np.asarray(x) / lab.cap, -floor, 0.25)  # noqa: E731
+            np.testing.assert_array_equal(clip(got.pd_sub), clip(f.pd_sub))
+            assert clip(got.pd) == clip(f.pd)
+            assert split_subsets(np.array([got.pd]), lab.eps) == split_subsets(np.array([f.pd]), lab.eps)
+        a, b = lab.label_limited(meshes[0]), lab.label(meshes[0])  # no limit: the full label
+        assert (a.collides, a.n_pairs, a.pd) == (b.collides, b.n_pairs, b.pd)
+        np.testing.assert_array_equal(a.pd_sub, b.pd_sub)
+    lab.prune = True
+    with pytest.raises(ValueError, match="clearance_limit"):
+        lab.label_limited(meshes[0], 0.0)

@@ -151,3 +151,29 @@ def test_import_without_torch():
             "assert not bad, bad")
     res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_limited_labels_on_the_pool_equal_the_capped_full_labels(setup, workers):
+    """pool.label(v, clearance_limit=L): every executor returns the full labels with clearances capped at L (the
+    labels for training, issue 42); a labeler without ``label_limited`` has its full label capped the same way."""
+    from neuralcol.collision.labeler import limit_clearance
+
+    labeler, batch, ref = setup
+    limit = 0.1 * float(-ref.pd.min())
+    want = Labels.stack([limit_clearance(labeler.label(v), limit) for v in batch], 2)
+    assert not np.array_equal(want.pd_sub, ref.pd_sub), "the limit must change some label"
+    with LabelPool(labeler, workers=workers, chunk_size=3) as pool:
+        assert_labels_equal(pool.label(batch, clearance_limit=limit), want)
+        assert_labels_equal(pool.label(batch), ref)  # the next call without a limit: full labels again
+    with ThreadPoolExecutor(max_workers=2) as ex, LabelPool(labeler, executor=ex, chunk_size=3) as pool:
+        assert_labels_equal(pool.label_report(batch, clearance_limit=limit).labels, want)
+
+    class FullOnly:  # a backend with only the full label
+        n_vertices, n_parts = labeler.n_vertices, labeler.n_parts
+        label = staticmethod(labeler.label)
+
+    with LabelPool(FullOnly(), workers=0) as pool:
+        assert_labels_equal(pool.label(batch, clearance_limit=limit), want)
+        with pytest.raises(ValueError, match="clearance_limit"):
+            pool.label(batch, clearance_limit=-1.0)

@@ -24,7 +24,7 @@ distributed = pytest.importorskip(
 
 import dask  # noqa: E402
 
-from neuralcol.collision.labeler import ExactLabeler, Labels  # noqa: E402
+from neuralcol.collision.labeler import ExactLabeler, Labels, limit_clearance  # noqa: E402
 from neuralcol.collision.pool import LabelPool  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,12 +78,16 @@ def test_labels_equal_in_process_in_input_order(setup, cluster):
         order = np.random.default_rng(1).permutation(len(batch))
         assert_rows_equal(pool.label(batch[order]), reference(clean, batch[order]))
         assert pool.label(batch[:0]).pd.shape == (0,)
+        limit = 0.1 * float(-ref.pd.min())  # labels for training (issue 42): clearances capped, the rest equal
+        capped = Labels.stack([limit_clearance(clean.label(v), limit) for v in batch], clean.n_parts)
+        assert not np.array_equal(capped.pd_sub, ref.pd_sub)
+        assert_rows_equal(pool.label(batch, clearance_limit=limit), capped)
         assert "executor='dask'" in repr(pool)
         # at most 2 chunks per cluster thread are in flight
         submitted, submit, peak = [], pool._dask.submit, [0]
 
-        def counting_submit(chunk):
-            fut, tid = submit(chunk)
+        def counting_submit(chunk, *limit):
+            fut, tid = submit(chunk, *limit)
             submitted.append(fut)
             peak[0] = max(peak[0], sum(not f.done() for f in submitted))
             return fut, tid

@@ -21,7 +21,7 @@ from neuralcol.active.acquisition import AcquiredRows, UniformAcquisition, conca
 from neuralcol.collision.labeler import ExactLabeler, Labels
 from neuralcol.collision.pool import LabelingError, LabelPool
 from neuralcol.samples.oracle import LatentOracle
-from neuralcol.samples.store import CollisionStore
+from neuralcol.samples.store import CollisionStore, StoreCorruptedError
 from neuralcol.samples.uniform import labeled_uniform_rows, uniform_codes, uniform_rows
 
 OFFSETS = [1.5, 2.6, 1.9, 3.0, 1.2, 2.05, 1.99, 4.0]  # overlapping (< 2) and free (> 2)
@@ -233,3 +233,36 @@ def test_concat_sums_label_failures():
         return AcquiredRows(*(np.zeros(0) for _ in range(6)), 0.0, 0.0, {"n_label_failures": n_failed})
 
     assert concat_acquired([part(2), part(3)]).info["n_label_failures"] == 5
+
+
+def test_training_oracle_gives_the_full_labels_clipped_targets_and_its_own_pool(setup, tmp_path):
+    """LatentOracle.for_training(pd_floor): clearances capped at the floor's depth; the detector's targets, verdicts
+    and subsets equal the full oracle's bit for bit; a cached uniform pool holds one kind of labels only."""
+    from neuralcol.samples.datamodule import detector_targets
+    from neuralcol.samples.store import CollisionRows
+
+    clean, _, _ = setup
+    space = SphereSpace()
+    full = LatentOracle(space, LabelPool(clean, chunk_size=3))
+    limited = full.for_training(-0.25)
+    assert full.for_training(None) is full and limited.pool is full.pool
+    assert limited.clearance_limit == pytest.approx(0.25 * clean.cap) and limited.clearance_limit > 0.25 * clean.cap
+    z = torch.tensor([[1.5, 0.0], [2.6, 0.1], [2.02, 0.2], [1.99, 1.0], [2.3, 0.5], [2.9, 1.5]])
+    a, b = full(z), limited(z)
+    assert (b.pd_sub < a.pd_sub).sum() == 0 and (b.pd_sub > a.pd_sub).any(), "some clearance was capped"
+    np.testing.assert_array_equal(a.collides, b.collides)
+    np.testing.assert_array_equal(a.subset, b.subset)
+
+    def rows(lab):
+        n = len(lab.z)
+        return CollisionRows(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset, np.zeros(n, np.int16),
+                             np.zeros(n, np.int8), np.arange(n))
+
+    for x, y in zip(detector_targets(rows(a), clean.cap, 0.25, pd_floor=-0.25),
+                    detector_targets(rows(b), clean.cap, 0.25, pd_floor=-0.25)):
+        assert torch.equal(x, y)
+    uniform_rows(tmp_path / "u.h5", full, 4, seed=1)
+    with pytest.raises(StoreCorruptedError, match="clearance limit"):
+        uniform_rows(tmp_path / "u.h5", limited, 8, seed=1)
+    uniform_rows(tmp_path / "v.h5", limited, 4, seed=1)
+    assert uniform_rows(tmp_path / "v.h5", limited, 6, seed=1).labeled == 2

@@ -52,6 +52,7 @@ def test_shipped_configs_are_valid(preset):
     ("autoencoder.level1.code_noise=-0.1", "autoencoder.level1.code_noise=-0.1: must be >= 0"),
     ("autoencoder.level2.interp_ratio=-1", "autoencoder.level2.interp_ratio=-1: must be >= 0"),
     ("autoencoder.interp_t=[1.0,0.0]", "autoencoder.interp_t"),
+    ("detector.targets.training_labels=clipped", "detector.targets.training_labels='clipped': use limited or full"),
     ("detector.operating_set=codes", "detector.operating_set='codes': use auto, calibration, realistic or both"),
     ("detector.inputs=latent detector.operating_set=both", "detector.operating_set='both': needs detector.inputs"),
 ])

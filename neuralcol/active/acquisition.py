@@ -176,7 +176,8 @@ class ProjectedAcquisition(UniformAcquisition):
         z = torch.as_tensor(lab.z)
         quality = projection_quality(z0.numpy()[kept], lab.z, lab.pd, None if pd_start is None else pd_start[kept],
                                      float(self.oracle.pool.labeler.eps),
-                                     self.box_lo.numpy(), self.box_hi.numpy(), self.oracle.space.n_parts)
+                                     self.box_lo.numpy(), self.box_hi.numpy(), self.oracle.space.n_parts,
+                                     getattr(self.oracle, "clearance_limit", None))
         with torch.no_grad():
             p = torch.sigmoid(net64(z.to(dev, torch.float64)).logit).cpu().numpy() if len(z) else np.zeros(0)
         info = {"n_projected": int(len(z)), "n_projection_failed": int((~proj.finite).sum()),
@@ -199,5 +200,6 @@ class ProjectedAcquisition(UniformAcquisition):
         uniform = self.take_uniform(n - len(projected.z))
         if "projection" in projected.info:  # the same shares for this round's uniform samples, for comparison
             eps = float(self.oracle.pool.labeler.eps)
-            projected.info["projection"]["uniform"] = boundary_shares(uniform.pd, eps)
+            projected.info["projection"]["uniform"] = boundary_shares(uniform.pd, eps,
+                                                                      getattr(self.oracle, "clearance_limit", None))
         return concat_acquired([projected, uniform])

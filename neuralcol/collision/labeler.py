@@ -38,6 +38,12 @@ diagonal of the rest mesh the labeler is built with):
   ``PD = max_i PD_i``. So ``PD > 0`` iff the mesh self-collides; PD is the deepest penetration when it
   does and minus the (capped) clearance when it does not; both sides go to 0 at the contact, and a part
   that is not involved in a collision keeps its clearance. Units: length, like the vertices.
+* **Clearance limit** (labels for training, issue 42). ``label(v, clearance_limit=L)`` caps clearances at
+  ``min(cap, L)`` instead of ``cap``: ``PD_i = max(PD_i, -L)``, everything else unchanged (verdict, counted
+  pairs, positive PD_i bit for bit). The detector's targets are clipped to a band of the cap (``detector.targets``),
+  so with ``L`` at the band's edge the clipped targets are bit for bit those of the full label, while the passes
+  skip every pair that could only lower a clearance that is already below ``L`` (about half of a free
+  mesh's label).
 
 See ``docs/labels.md`` for the reasoning, and why python-fcl's triangle-pair contact depth was not used for
 PD (measured: it jumps from 0 to a large value when a triangle enters another from its side).
@@ -127,6 +133,25 @@ def checked_partition(partition, n_vertices: int) -> np.ndarray:
     return part
 
 
+def limit_clearance(label: Label, clearance_limit: float | None) -> Label:
+    """``label`` with its clearances capped at ``clearance_limit`` (``PD_i = max(PD_i, -limit)``; None: as is):
+    what ``ExactLabeler.label(v, clearance_limit=...)`` returns, for labelers that only compute the full label."""
+    if clearance_limit is None:
+        return label
+    pd_sub = np.maximum(label.pd_sub, -float(clearance_limit))
+    return Label(label.collides, label.n_pairs, float(pd_sub.max()), pd_sub)
+
+
+def check_clearance_limit(clearance_limit) -> float | None:
+    """``clearance_limit`` as a float > 0 (None stays None); ValueError otherwise."""
+    if clearance_limit is None:
+        return None
+    limit = float(clearance_limit)
+    if not limit > 0:  # also NaN
+        raise ValueError(f"clearance_limit={clearance_limit!r} must be > 0 (a length), or None for the full label")
+    return limit
+
+
 class MeshByMesh:
     """``label_batch`` and ``subsets`` of a labeler that labels one mesh at a time with its ``label`` (and has
     ``n_vertices``, ``n_parts`` and ``eps``), and the check of one mesh's vertices: :class:`ExactLabeler` and
@@ -141,13 +166,18 @@ class MeshByMesh:
             raise ValueError("vertices contain NaN or inf; cannot label")
         return v
 
-    def label_batch(self, vertices) -> Labels:
+    def label_batch(self, vertices, clearance_limit: float | None = None) -> Labels:
         """Labels of a batch (B, V, 3), one mesh after the other in this process (worker processes:
-        :class:`~neuralcol.collision.pool.LabelPool`)."""
+        :class:`~neuralcol.collision.pool.LabelPool`); ``clearance_limit`` as :meth:`label_limited`."""
         v = np.asarray(vertices)
         if v.ndim != 3:
             raise ValueError(f"vertices have shape {v.shape}, expected (B, {self.n_vertices}, 3)")
-        return Labels.stack([self.label(x) for x in v], self.n_parts)
+        return Labels.stack([self.label_limited(x, clearance_limit) for x in v], self.n_parts)
+
+    def label_limited(self, vertices, clearance_limit: float | None = None) -> Label:
+        """:meth:`label` with clearances capped at ``clearance_limit`` (module docstring of
+        :mod:`neuralcol.collision.labeler`); a labeler without a faster path caps its full label."""
+        return limit_clearance(self.label(vertices), check_clearance_limit(clearance_limit))
 
     def subsets(self, pd: np.ndarray) -> np.ndarray:
         """D_p / D_n / D_b codes of PD values with this labeler's ``eps`` (see :func:`split_subsets`)."""
@@ -254,18 +284,27 @@ class ExactLabeler(MeshByMesh):
         n_pairs, pd_sub, _ = self._label(vertices)
         return Label(bool(n_pairs > 0), int(n_pairs), float(pd_sub.max()), pd_sub)
 
+    def label_limited(self, vertices, clearance_limit: float | None = None) -> Label:
+        """:meth:`label` with clearances capped at ``clearance_limit`` (``PD_i = max(PD_i, -limit)``, module
+        docstring): the passes start from that clearance, so every pair that could only lower a clearance below
+        it is skipped. None: the full label."""
+        limit = check_clearance_limit(clearance_limit)
+        n_pairs, pd_sub, _ = self._label(vertices, np.inf if limit is None else limit)
+        return Label(bool(n_pairs > 0), int(n_pairs), float(pd_sub.max()), pd_sub)
+
     def vertex_depths(self, vertices) -> np.ndarray:
         """Penetration depth of every vertex (V,) (0 for vertices that do not penetrate), e.g. to colour a mesh."""
         return self._label(vertices)[2]
 
-    def _label(self, vertices):
+    def _label(self, vertices, clearance_limit: float = np.inf):
         v = self._check(vertices)
         if not self.prune:
-            return self._label_reference(v)
+            n_pairs, out, depth_v = self._label_reference(v)
+            return n_pairs, (out if clearance_limit == np.inf else np.maximum(out, -clearance_limit)), depth_v
         f = self.faces
         lo0, hi0 = triangle_aabbs(v, f, 0.0)
         lo_cap, hi_cap = triangle_aabbs(v, f, 0.5 * self.cap)
-        clear = np.full(self.n_parts, np.inf)
+        clear = np.full(self.n_parts, clearance_limit)  # a term >= the limit cannot change a limited label
         floor = np.zeros(self.n_parts)
         rec_key = np.empty(64)
         rec_int = np.empty((64, 5), dtype=np.int64)

@@ -72,7 +72,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from neuralcol.collision.labeler import ExactLabeler, Label, Labels
+from neuralcol.collision.labeler import ExactLabeler, Label, Labels, check_clearance_limit
 from neuralcol.collision.pool_common import (
     STARTUP_TIMEOUT,
     Batch,
@@ -158,11 +158,12 @@ def _ready() -> int:
     return os.getpid()
 
 
-def _label_chunk(chunk: np.ndarray) -> list[Label | str]:
-    """Labels of a chunk (C, V, 3) float64 with the labeler installed by :func:`_init_worker`."""
+def _label_chunk(chunk: np.ndarray, clearance_limit: float | None = None) -> list[Label | str]:
+    """Labels of a chunk (C, V, 3) float64 with the labeler installed by :func:`_init_worker` (``clearance_limit``:
+    :func:`~neuralcol.collision.pool_common.label_chunk`)."""
     if _WORKER_LABELER is None:
         raise RuntimeError("LabelPool worker has no labeler; _label_chunk must run in a pool made by LabelPool")
-    return label_chunk(_WORKER_LABELER, chunk)
+    return label_chunk(_WORKER_LABELER, chunk, clearance_limit)
 
 
 def _death_reason(exit_codes: list[int | None]) -> str:
@@ -397,11 +398,13 @@ class LabelPool:
                                  "of the batch contain NaN or inf vertices; cannot label them")
         return v
 
-    def label(self, vertices) -> Labels:
+    def label(self, vertices, clearance_limit: float | None = None) -> Labels:
         """Labels of a batch of meshes, in input order.
 
         Args:
             vertices: (B, V, 3) float, numpy or a torch tensor (any device); V = ``labeler.n_vertices``.
+            clearance_limit: None: full labels; a length: clearances capped there (labels for training:
+                :meth:`~neuralcol.collision.labeler.ExactLabeler.label_limited`).
 
         Returns:
             Labels with collides (B,) bool, n_pairs (B,) int64, pd (B,) float64, pd_sub (B, K) float64.
@@ -411,12 +414,12 @@ class LabelPool:
             LabelingError: some meshes could not be labelled (after the retries); lists them, and its
                 ``report`` holds the labels of the others. Use :meth:`label_report` to get them directly.
         """
-        report = self._run(self._check(vertices))
+        report = self._run(self._check(vertices), clearance_limit=check_clearance_limit(clearance_limit))
         if report.failures:
             raise LabelingError(report, self.desc)
         return report.labels
 
-    def label_report(self, vertices) -> LabelReport:
+    def label_report(self, vertices, clearance_limit: float | None = None) -> LabelReport:
         """Labels of a batch of meshes, in input order, with the meshes that could not be labelled.
 
         Per-mesh faults (the labeler raising, a worker dying or hanging, non-finite vertices) do not raise:
@@ -425,6 +428,7 @@ class LabelPool:
 
         Args:
             vertices: (B, V, 3) float, numpy or a torch tensor (any device); V = ``labeler.n_vertices``.
+            clearance_limit: as :meth:`label`.
 
         Returns:
             :class:`LabelReport` (labels of all B rows, ``ok`` mask, failures sorted by index).
@@ -435,26 +439,28 @@ class LabelPool:
         """
         v = self._check(vertices, allow_non_finite=True)
         finite = np.isfinite(v).all(axis=(1, 2)) if len(v) else np.zeros(0, bool)
-        report = self._run(v, skip={int(i): "non-finite vertices" for i in np.flatnonzero(~finite)})
+        report = self._run(v, skip={int(i): "non-finite vertices" for i in np.flatnonzero(~finite)},
+                           clearance_limit=check_clearance_limit(clearance_limit))
         if report.failures:
             log.warning("%s: %s", self.desc, format_failures(report.failures, len(v)))
         return report
 
-    def _run(self, v: np.ndarray, skip: dict[int, str] | None = None) -> LabelReport:
+    def _run(self, v: np.ndarray, skip: dict[int, str] | None = None,
+             clearance_limit: float | None = None) -> LabelReport:
         """Label every mesh of ``v`` (B, V, 3) float64 except ``skip`` (index -> reason, reported as is)."""
         n, k = len(v), self.labeler.n_parts
         todo = np.setdiff1d(np.arange(n), np.fromiter(skip or {}, dtype=np.int64, count=len(skip or {})))
         # chunks of consecutive meshes to label (the skipped ones are left out)
         tasks = [Task(todo[s:s + self.chunk_size], False) for s in range(0, len(todo), self.chunk_size)]
         with progress_bar(total=n, desc=self.desc, unit="mesh", disable=not self.progress) as bar:
-            batch = Batch(n, bar)
+            batch = Batch(n, bar, clearance_limit)
             for i, why in (skip or {}).items():
                 batch.fail(i, why)
             if self.executor == "local" and self.workers <= 1:
                 queue = collections.deque(tasks)
                 while queue:
                     task = queue.popleft()
-                    queue.extend(batch.settle(task, label_chunk(self.labeler, v[task.idx])))
+                    queue.extend(batch.settle(task, label_chunk(self.labeler, v[task.idx], clearance_limit)))
             elif self.executor == "dask":
                 from neuralcol.collision.pool_dask import run_dask
 
@@ -487,9 +493,9 @@ class LabelPool:
             task = queue[0]
             chunk = v[task.idx]
             if own:
-                fut = self._process_executor().submit(_label_chunk, chunk)
+                fut = self._process_executor().submit(_label_chunk, chunk, batch.clearance_limit)
             else:
-                fut = self._user_executor.submit(label_chunk, self.labeler, chunk)
+                fut = self._user_executor.submit(label_chunk, self.labeler, chunk, batch.clearance_limit)
             in_flight[fut] = (queue.popleft(), time.monotonic())
 
         def harvest(fut: cf.Future) -> bool:

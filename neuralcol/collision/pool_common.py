@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from neuralcol.collision.labeler import ExactLabeler, Label
+from neuralcol.collision.labeler import ExactLabeler, Label, limit_clearance
 from neuralcol.utils.faults import fault_point
 
 STARTUP_TIMEOUT = 900.0  # seconds the workers may take to start (import, unpickle the labeler, load/compile kernels)
@@ -37,12 +37,15 @@ def warm_up(labeler) -> None:
             pass
 
 
-def label_chunk(labeler: ExactLabeler, chunk: np.ndarray) -> list[Label | str]:
+def label_chunk(labeler: ExactLabeler, chunk: np.ndarray, clearance_limit: float | None = None) -> list[Label | str]:
     """Labels of a chunk (C, V, 3) float64 with the given labeler (self-contained task for any executor).
 
     Args:
         labeler: the exact labeler.
         chunk: (C, V, 3) float64 vertices.
+        clearance_limit: None: the full label; a length: clearances capped there (labels for training,
+            :meth:`~neuralcol.collision.labeler.ExactLabeler.label_limited`; a labeler without that method caps
+            its full label, same values).
 
     Returns:
         C entries in the order of ``chunk``: the mesh's Label, or a failure reason (str) if the labeler raised
@@ -59,12 +62,19 @@ def label_chunk(labeler: ExactLabeler, chunk: np.ndarray) -> list[Label | str]:
         if labels is not None:
             for i in range(len(chunk)):
                 lb = Label(bool(labels.collides[i]), int(labels.n_pairs[i]), float(labels.pd[i]), labels.pd_sub[i])
+                lb = limit_clearance(lb, clearance_limit)
                 ok = np.isfinite(lb.pd) and np.isfinite(lb.pd_sub).all()
                 out.append(lb if ok else f"non-finite label (pd={lb.pd})")
             return out
+    limited = getattr(labeler, "label_limited", None) if clearance_limit is not None else None
     for v in chunk:
         try:
-            lb = labeler.label(v)
+            if clearance_limit is None:
+                lb = labeler.label(v)
+            elif limited is not None:
+                lb = limited(v, clearance_limit)
+            else:
+                lb = limit_clearance(labeler.label(v), clearance_limit)
         except Exception as exc:  # one bad mesh must not lose the chunk
             out.append(failure_reason(exc))
             continue
@@ -95,9 +105,11 @@ class Task(NamedTuple):
 
 
 class Batch:
-    """Bookkeeping of one call: labels and failures by index, exception retries, the progress bar."""
+    """Bookkeeping of one call: labels and failures by index, exception retries, the progress bar, the call's
+    ``clearance_limit`` (None: full labels)."""
 
-    def __init__(self, n: int, bar):
+    def __init__(self, n: int, bar, clearance_limit: float | None = None):
+        self.clearance_limit = clearance_limit  # every chunk of the call is labeled with it (label_chunk)
         self.results: list[Label | None] = [None] * n
         self.failures: dict[int, str] = {}
         self.raised: collections.Counter = collections.Counter()  # exceptions per mesh

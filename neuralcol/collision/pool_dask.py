@@ -83,7 +83,8 @@ def _topic(token: str) -> str:
     return f"neuralcol-label-start-{token}"
 
 
-def _label_chunk_dask(token: str, tid: int, chunk: np.ndarray, log_start: bool) -> list:
+def _label_chunk_dask(token: str, tid: int, chunk: np.ndarray, log_start: bool,
+                      clearance_limit: float | None = None) -> list:
     """A dask task: labels of a chunk (C, V, 3) float64 with the labeler the pool installed on this worker.
 
     Args:
@@ -91,6 +92,7 @@ def _label_chunk_dask(token: str, tid: int, chunk: np.ndarray, log_start: bool) 
         tid: the task's number in the pool (named in the start event).
         chunk: (C, V, 3) float64 vertices.
         log_start: send a start event (``timeout``), after the labeler's warm-up.
+        clearance_limit: None (full labels) or the clearance cap of labels for training.
 
     Returns:
         C entries: the mesh's Label, or a failure reason (see :func:`~neuralcol.collision.pool_common.label_chunk`).
@@ -104,7 +106,7 @@ def _label_chunk_dask(token: str, tid: int, chunk: np.ndarray, log_start: bool) 
     if log_start:
         worker = get_worker()
         worker.log_event(_topic(token), {"tid": tid, "worker": worker.address})
-    return common.label_chunk(labeler, chunk)
+    return common.label_chunk(labeler, chunk, clearance_limit)
 
 
 def _kill_worker_process(dask_worker) -> int:
@@ -194,10 +196,11 @@ class DaskSession:
         """Worker threads of the cluster now."""
         return int(sum(self.client.nthreads().values()))
 
-    def submit(self, chunk: np.ndarray):
+    def submit(self, chunk: np.ndarray, clearance_limit: float | None = None):
         """Submit a chunk; returns (future, task number)."""
         self._tid += 1
         fut = self.client.submit(_label_chunk_dask, self.token, self._tid, chunk, self.topic is not None,
+                                 clearance_limit,
                                  key=f"neuralcol-label-{self.token[:8]}-{self._tid}", pure=False)
         return fut, self._tid
 
@@ -240,7 +243,7 @@ def run_dask(pool, session: DaskSession, v: np.ndarray, tasks: list[common.Task]
 
     def submit(q: collections.deque[common.Task]) -> None:
         task = q.popleft()
-        fut, tid = session.submit(v[task.idx])
+        fut, tid = session.submit(v[task.idx], batch.clearance_limit)
         in_flight[fut] = (task, tid)
         fut.add_done_callback(done_q.put)
 

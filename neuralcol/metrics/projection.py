@@ -11,12 +11,14 @@ from __future__ import annotations
 import numpy as np
 
 
-def boundary_shares(pd: np.ndarray, eps: float) -> dict[str, float]:
+def boundary_shares(pd: np.ndarray, eps: float, clearance_limit: float | None = None) -> dict[str, float]:
     """Shares of samples near the true boundary: ``|PD| <= eps`` and ``|PD| <= 2 eps``, and colliding.
 
     Args:
         pd: (B,) exact signed penetration depths of the samples.
         eps: the labeler's boundary threshold (``D_b = {0 <= PD <= eps}``, paper eq. 1).
+        clearance_limit: the labels' clearance limit (labels for training, issue 42; None: full labels). A
+            share whose width reaches it is NaN: a free sample's clearance beyond the limit is not known.
     """
     pd = np.asarray(pd, np.float64)
     if eps <= 0:
@@ -25,12 +27,15 @@ def boundary_shares(pd: np.ndarray, eps: float) -> dict[str, float]:
     if len(pd) == 0:
         return {"within_eps": nan, "within_2eps": nan, "colliding": nan}
     a = np.abs(pd)
-    return {"within_eps": float(np.mean(a <= eps)), "within_2eps": float(np.mean(a <= 2 * eps)),
+    lim = np.inf if clearance_limit is None else float(clearance_limit)
+    return {"within_eps": float(np.mean(a <= eps)) if eps < lim else nan,
+            "within_2eps": float(np.mean(a <= 2 * eps)) if 2 * eps < lim else nan,
             "colliding": float(np.mean(pd > 0))}
 
 
 def projection_quality(z0: np.ndarray, z: np.ndarray, pd: np.ndarray, pd_start: np.ndarray | None, eps: float,
-                       box_lo: np.ndarray, box_hi: np.ndarray, n_level1: int) -> dict:
+                       box_lo: np.ndarray, box_hi: np.ndarray, n_level1: int,
+                       clearance_limit: float | None = None) -> dict:
     """Statistics of one round of projected samples.
 
     Args:
@@ -41,6 +46,7 @@ def projection_quality(z0: np.ndarray, z: np.ndarray, pd: np.ndarray, pd_start: 
         eps: boundary threshold of D_b.
         box_lo, box_hi: (D,) the latent box.
         n_level1: K = |Z_0|; columns ``[:K]`` are level 1, the rest level 2.
+        clearance_limit: of the labels ``pd`` and ``pd_start`` (:func:`boundary_shares`).
 
     Returns:
         ``n``; ``within_eps``, ``within_2eps``, ``colliding`` (projected samples); the same for the starting
@@ -55,9 +61,9 @@ def projection_quality(z0: np.ndarray, z: np.ndarray, pd: np.ndarray, pd_start: 
         raise ValueError(f"z0 {z0.shape} and z {z.shape} must both be (B, {len(lo)})")
     k = int(n_level1)
     half = (hi - lo) / 2
-    out = {"n": int(len(z)), **boundary_shares(pd, eps)}
+    out = {"n": int(len(z)), **boundary_shares(pd, eps, clearance_limit)}
     if pd_start is not None:
-        out["start"] = boundary_shares(pd_start, eps)
+        out["start"] = boundary_shares(pd_start, eps, clearance_limit)
     nan = float("nan")
     if len(z) == 0:
         return {**out, "on_face_level1": nan, "on_face_level2": nan, "moved_level1": nan, "moved_level2": nan,

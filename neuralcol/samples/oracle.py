@@ -52,6 +52,12 @@ class OracleLabels(NamedTuple):
                              collides=self.collides[keep], subset=self.subset[keep], ok=None)
 
 
+def training_clearance_limit(cap: float, pd_floor: float) -> float:
+    """The clearance limit of labels for training: ``-pd_floor * cap`` grown by 1e-9 of itself, so that a capped
+    clearance ``-limit`` divided by ``cap`` lands below ``pd_floor`` in floating point (clipped to it exactly)."""
+    return -float(pd_floor) * float(cap) * (1.0 + 1e-9)
+
+
 class LatentOracle:
     """Exact labels of latent codes.
 
@@ -59,15 +65,31 @@ class LatentOracle:
         space: the latent space (decoder, box, partition into sub-domains).
         pool: a label pool whose labeler uses ``space.partition`` (so ``pd_sub`` has K columns).
         decode_batch: codes decoded per batch (bounds the memory of the decoded vertices).
+        clearance_limit: None: full labels; a length: clearances capped there, the labels for training whose
+            clipped targets equal the full label's (:meth:`for_training`, issue 42).
     """
 
-    def __init__(self, space: LatentSpace, pool: LabelPool, decode_batch: int = 256):
+    def __init__(self, space: LatentSpace, pool: LabelPool, decode_batch: int = 256,
+                 clearance_limit: float | None = None):
         if pool.labeler.n_parts != space.n_parts:
             raise ValueError(f"the pool's labeler has {pool.labeler.n_parts} parts but the latent space has "
                              f"{space.n_parts} sub-domains; build the labeler with partition=space.partition")
         self.space = space
         self.pool = pool
         self.decode_batch = int(decode_batch)
+        self.clearance_limit = None if clearance_limit is None else float(clearance_limit)
+
+    def for_training(self, pd_floor: float | None) -> LatentOracle:
+        """This oracle's labels for training: clearances capped just beyond ``-pd_floor`` caps (the detector's
+        targets are ``clip(pd / cap, pd_floor, pd_clip)``, so they are the full label's bit for bit while a free
+        mesh costs about half; ``docs/labels.md``). ``pd_floor`` None (targets without a lower bound): this
+        oracle, full labels. Same pool, same space."""
+        if pd_floor is None:
+            return self
+        if not float(pd_floor) < 0:
+            raise ValueError(f"pd_floor={pd_floor} must be < 0 (detector.targets.pd_floor)")
+        limit = training_clearance_limit(float(self.pool.labeler.cap), float(pd_floor))
+        return LatentOracle(self.space, self.pool, self.decode_batch, clearance_limit=limit)
 
     @property
     def eps(self) -> float:
@@ -90,7 +112,8 @@ class LatentOracle:
             k = self.space.n_parts
             return OracleLabels(np.zeros((0, self.space.dim), np.float32), np.zeros(0), np.zeros((0, k)),
                                 np.zeros(0, bool), np.zeros(0, np.int8), 0.0, np.zeros(0, bool), ())
-        report = self.pool.label_report(self.decode(z))  # NaN/inf decoded meshes are reported, not labeled
+        # NaN/inf decoded meshes are reported, not labeled
+        report = self.pool.label_report(self.decode(z), clearance_limit=self.clearance_limit)
         labels = report.labels
         subset = split_subsets(labels.pd, self.eps)
         subset[~report.ok] = -1

@@ -99,6 +99,18 @@ def uniform_rows(path: str | os.PathLike, oracle: LatentOracle, n: int, seed: in
         elif int(store.attrs["seed"]) != int(seed):
             raise StoreCorruptedError(f"{path}: holds the uniform samples of seed {int(store.attrs['seed'])}, "
                                       f"not {seed}; delete it or point paths.cache_dir elsewhere")
+        limit = getattr(oracle, "clearance_limit", None)
+        limit = -1.0 if limit is None else float(limit)  # -1: full labels
+        if "clearance_limit" not in store.attrs:
+            if len(store) and limit != -1.0:
+                raise StoreCorruptedError(f"{path}: holds full labels (written before issue 42), not labels with "
+                                          f"clearances capped at {limit:g}; delete it or point paths.cache_dir "
+                                          "elsewhere")
+            store.attrs["clearance_limit"] = limit
+        elif float(store.attrs["clearance_limit"]) != limit:
+            held = float(store.attrs["clearance_limit"])
+            raise StoreCorruptedError(f"{path}: holds labels with clearance limit {held:g} (-1: full), not {limit:g}; "
+                                      "delete it or point paths.cache_dir elsewhere")
         if "n_codes" not in store.attrs:  # a new store, or one written before failures were counted
             store.attrs["n_codes"], store.attrs["n_label_failures"] = len(store), 0
         n_codes, n_fail = int(store.attrs["n_codes"]), int(store.attrs["n_label_failures"])

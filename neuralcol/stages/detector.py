@@ -181,6 +181,22 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
             "calibration": {"n": int(len(y)), **{k: cal[k] for k in ("accuracy", "fnr", "fpr")}}}
 
 
+def training_oracle(oracle: LatentOracle, det: dict, seed: int) -> tuple[LatentOracle, str]:
+    """The oracle of D_c's rows and the file name of the seed's uniform pool (shared by every method of the seed):
+    ``detector.targets.training_labels`` ``limited`` (default; needs ``pd_floor``): clearances capped at the
+    targets' floor (:meth:`~neuralcol.samples.oracle.LatentOracle.for_training`), pool
+    ``uniform_s<seed>_floor<pd_floor>.h5``;
+    ``full``: the full labels, pool ``uniform_s<seed>.h5`` (the name before issue 42)."""
+    targets = det["targets"]
+    kind = str(targets.get("training_labels", "limited"))
+    if kind not in ("limited", "full"):
+        raise UserInputError(f"detector.targets.training_labels={kind!r}; use limited or full")
+    floor = targets.get("pd_floor")
+    if kind == "full" or floor is None or not hasattr(oracle, "for_training"):  # (an analytic test oracle)
+        return oracle, f"uniform_s{seed}.h5"
+    return oracle.for_training(float(floor)), f"uniform_s{seed}_floor{float(floor):g}.h5"
+
+
 def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key: str, seed: int,
                    cache_dir: str | Path, run_dir: str | Path, logger=None, round_eval=None,
                    real_rows: RealisticRows | None = None) -> dict:
@@ -210,9 +226,12 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     test_failures = label_failures(shared / f"test_s{det['test_seed']}.h5")
     # 2. D_c, the acquisition and the rounds
     pd_unit = float(labeler.cap)
-    pool_path = shared / f"uniform_s{seed}.h5"
+    # issue 42: D_c's rows get labels for training (clearances capped at the targets' floor: same clipped targets,
+    # about half the cost of a free mesh) unless detector.targets.training_labels=full
+    train_oracle, pool_name = training_oracle(oracle, det, seed)
+    pool_path = shared / pool_name
     # the method's acquisition (method.acquisition: UniformAcquisition or ProjectedAcquisition, built by Hydra)
-    acquire = instantiate(method["acquisition"])(pool_path, oracle, seed)
+    acquire = instantiate(method["acquisition"])(pool_path, train_oracle, seed)
     rd = RunDir(run_dir)
     ckpt = rd.checkpoint
     resuming = ckpt.is_file()
@@ -275,6 +294,8 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
                 "inputs": inputs, "n_pairs": 0 if geometry is None else int(geometry.n_pairs),
                 "n_vertices_read": 0 if geometry is None else int(len(geometry.vertex_index)),
                 "n_realistic_rows": n_realistic,
+                "training_labels": {"clearance_limit": getattr(train_oracle, "clearance_limit", None),
+                                    "pool": pool_name},
                 "net": {**net_widths(det["net"]), "width": float(det["net"].get("width", 1.0))}}
 
     n_realistic = 0  # realistic training meshes among D_c's rows (counted below)

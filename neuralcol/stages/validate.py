@@ -58,9 +58,10 @@ def config_problems(cfg: DictConfig) -> list[str]:
     if _get(cfg, "detector.operating_set") is not None:
         need("detector.operating_set", lambda v: v in ("auto", "calibration", "realistic", "both"),
              "use auto, calibration, realistic or both")
-        if _get(cfg, "detector.operating_set") in ("realistic", "both") and _get(cfg, "detector.operating_fnr") is not None \
+        where = _get(cfg, "detector.operating_set")
+        if where in ("realistic", "both") and _get(cfg, "detector.operating_fnr") is not None \
                 and _get(cfg, "detector.inputs") != "code_and_mesh":
-            problems.append(f"detector.operating_set={_get(cfg, 'detector.operating_set')!r}: needs "
+            problems.append(f"detector.operating_set={where!r}: needs "
                             "detector.inputs=code_and_mesh (the realistic "
                             "training meshes are rows of its D_c only); use detector.operating_set=calibration")
     if _get(cfg, "detector.inputs") == "code_and_mesh":
@@ -88,6 +89,8 @@ def config_problems(cfg: DictConfig) -> list[str]:
         need("method.candidates", lambda v: is_int(v) and v >= 1, "must be an integer >= 1")
     if _get(cfg, "detector.targets.pd_floor") is not None:
         need("detector.targets.pd_floor", lambda v: float(v) < 0, "must be < 0 (or null: no lower clip)")
+    if _get(cfg, "detector.targets.training_labels") is not None:
+        need("detector.targets.training_labels", lambda v: v in ("limited", "full"), "use limited or full")
     for key in ("autoencoder.level1.code_noise", "autoencoder.level2.code_noise", "autoencoder.level1.interp_ratio",
                 "autoencoder.level2.interp_ratio", "method.update.min_steps",
                 "method.bootstrap.min_steps"):

@@ -1,0 +1,61 @@
+"""``training_labels``: samples per second of D_c's labels for training (clearances capped at the targets' floor,
+issue 42) against the full labels, through the same LatentOracle and LabelPool (2 workers), interleaved, on uniform
+codes of a finished SCAPE run's latent space; and whether verdicts, subsets and clipped targets are identical."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.context import BenchContext, where
+from bench.timing import ratio, repeat_interleaved, summarize
+
+
+def measure(ctx: BenchContext) -> dict:
+    """Full oracle against the training oracle on the same codes, 2 workers, interleaved repetitions."""
+    import torch
+
+    from neuralcol.api.run import load_run
+    from neuralcol.collision.pool import LabelPool
+    from neuralcol.samples.datamodule import detector_targets
+    from neuralcol.samples.oracle import LatentOracle
+    from neuralcol.samples.store import CollisionRows
+    from neuralcol.samples.uniform import uniform_codes
+
+    run_dir = ctx.trained_run()
+    run = load_run(run_dir)
+    targets = run.cfg.detector.targets
+    floor, clip = float(targets.pd_floor), float(targets.pd_clip)
+    n = 300 if ctx.quick else 1000
+    z = uniform_codes(run.space, 12345, 0, n)
+    with LabelPool(run.labeler, workers=2, chunk_size=32) as pool:
+        full = LatentOracle(run.space, pool)
+        train = full.for_training(floor)
+        full(z[:64])
+        train(z[:64])  # workers started and warm outside the timing
+        out = {}
+
+        def once(oracle, key):
+            out[key] = oracle(z)
+
+        tf, tt = repeat_interleaved(lambda: once(full, "full"), lambda: once(train, "train"), 3 if ctx.quick else 5)
+    a, b = out["full"], out["train"]
+
+    def rows(lab):
+        m = len(lab.z)
+        return CollisionRows(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset, np.zeros(m, np.int16),
+                             np.zeros(m, np.int8), np.arange(m))
+
+    cap = run.labeler.cap
+    same_targets = all(torch.equal(x, y) for x, y in zip(detector_targets(rows(a), cap, clip, pd_floor=floor),
+                                                         detector_targets(rows(b), cap, clip, pd_floor=floor)))
+    identical = bool(np.array_equal(a.collides, b.collides) and np.array_equal(a.subset, b.subset) and same_targets)
+    ctx.notes["training_labels"] = (f"{n} uniform codes of {where(run_dir)} (SCAPE), full labels against labels for "
+                                    f"training (clearances capped at {-floor:g} caps), same LatentOracle and 2-worker "
+                                    f"LabelPool, interleaved; verdicts, subsets and clipped targets identical: "
+                                    f"{identical}; colliding share {float(np.mean(a.collides)):.3f}")
+    if not identical:
+        raise AssertionError("training labels: verdicts, subsets or clipped targets differ from the full labels")
+    full_r = summarize([n / t for t in tf])
+    train_r = summarize([n / t for t in tt])
+    return {"training_labels_full_per_s": full_r, "training_labels_per_s": train_r,
+            "training_labels_speedup": ratio(train_r, full_r)}
