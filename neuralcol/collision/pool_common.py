@@ -130,12 +130,15 @@ class Batch:
     def settle(self, task: Task, out: list[Label | str]) -> list[Task]:
         """Record a task's result; returns the retries (meshes that raised for the first time, each alone)."""
         retry = []
+        done = 0
         for i, r in zip(task.idx, out):
             if isinstance(r, str):
                 retry += self.charge(int(i), r, task.isolated)
             else:
                 self.results[int(i)] = r
-                self.bar.update(1)
+                done += 1
+        if done:
+            self.bar.update(done)  # once per chunk (the main process shares the cores with the workers)
         fault_point("label_chunk")  # crash tests (neuralcol.utils.faults): a chunk is labelled
         return retry
 
