@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -48,9 +49,11 @@ from neuralcol.stages.model_size import search_model_size, validate_model_size
 from neuralcol.stages.realistic import evaluate_realistic, realistic_set
 from neuralcol.stages.speed import measure_speed_accuracy, speed_accuracy_table
 from neuralcol.stages.validate import validate_run_config
+from neuralcol.utils import sitting
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.resume import RunDirLock, find_interrupted_run
 from neuralcol.utils.seeding import seed_everything
+from neuralcol.utils.sitting_record import SittingRecord
 from neuralcol.utils.threads import pin_threads
 
 
@@ -262,11 +265,27 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     s = RunState(cfg=cfg, run_dir=run_dir, ctx=ctx, rd=ctx.run_dir, metrics=metrics, size_doc=None, net=None,
                  bands=None, calib_collides=None, real_arrays=None, handling_arrays=None,
                  pool=None, logger=None)
-    with contextlib.ExitStack() as s.pool_stack:
-        for stage in STAGES:
-            stage(s)
+    sitting.start(cfg.get("max_minutes"))
+    record = SittingRecord(s.rd.sittings)
+    try:
+        with contextlib.ExitStack() as s.pool_stack:
+            for stage in STAGES:
+                name = stage.__name__.removeprefix("stage_")
+                sitting.check(f"the start of stage {name}")
+                t0 = time.perf_counter()
+                try:
+                    stage(s)
+                finally:  # a stage stopped inside (at a safe point) counts its time too
+                    record.stage(name, time.perf_counter() - t0)
+    except sitting.SittingOver as over:
+        record.close(stopped_at=over.where)
+        raise
+    finally:
+        sitting.stop()
+    record.close()
+    s.metrics["sittings"] = record.summary()
     order = ("dataset", "acap", "dataset_labels", "autoencoder", "latent", "detector", "rounds", "handling",
-             "realistic", "cascade", "model_size", "speed_accuracy")
+             "realistic", "cascade", "model_size", "speed_accuracy", "sittings")
     metrics = {k: s.metrics[k] for k in order if k in s.metrics}
     log_latent(run_dir, metrics)
     s.rd.metrics.write_text(json.dumps(metrics, indent=2))
@@ -457,8 +476,12 @@ def main(cfg: DictConfig) -> None:
                   "afresh", flush=True)
             RunDir(run_dir).resumed_in.write_text(f"{earlier}\n")
             run_dir = earlier
-    with RunDirLock(run_dir):
-        metrics = run(cfg, run_dir)
+    try:
+        with RunDirLock(run_dir):
+            metrics = run(cfg, run_dir)
+    except sitting.SittingOver as over:
+        print(f"[sitting] {over}. Run directory: {run_dir} (exit code {sitting.EXIT_CODE})", flush=True)
+        sys.exit(sitting.EXIT_CODE)
     print_summary(metrics, run_dir)
 
 

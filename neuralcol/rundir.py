@@ -10,6 +10,7 @@ Run directory (one run)::
     metrics.json                every stage's results; written last, so its presence marks a finished run
     detector.pt                 the final detector (runs before issue 41 may hold a mesh_detector.pt: not read)
     detector_rounds.json        round records (rewritten each round; ``finished`` when done)
+    sittings.json               one record per invocation (max_minutes): wall time per stage, where it stopped
     dc.h5                       D_c, the labeled training samples  checkpoints/detector.ckpt  resume state
     geometry.npz                the contact pairs of a detector over code and mesh (detector.inputs=code_and_mesh)
     test_predictions.npz        the detector on the U(Z) test set  realistic_predictions.npz  on the realistic set
@@ -48,6 +49,7 @@ class RunDir:
     resumed_in = _File("resumed_in.txt")  # an interrupted run that was continued elsewhere names that directory
     detector = _File("detector.pt")
     detector_rounds = _File("detector_rounds.json")
+    sittings = _File("sittings.json")  # one record per invocation: stages' wall times, where it stopped (issue 42)
     dc = _File("dc.h5")
     geometry = _File("geometry.npz")  # the contact pairs a detector over code and mesh reads (issue 41)
     checkpoint = _File("checkpoints", "detector.ckpt")

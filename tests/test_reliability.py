@@ -29,10 +29,14 @@ def _volatile(key: str) -> bool:
     return key in VOLATILE_KEYS or key.endswith(("seconds", "seconds_per_mesh", "labeled_now"))
 
 
-def _run(args: list[str], out: Path, cache: Path, fault: str | None = None) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "NEURALCOL_FAULT")}
+def _run(args: list[str], out: Path, cache: Path, fault: str | None = None,
+         stop_at: str | None = None) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("HYDRA_FULL_ERROR", "NEURALCOL_FAULT", "NEURALCOL_SITTING_STOP_AT")}
     if fault:
         env["NEURALCOL_FAULT"] = fault
+    if stop_at:
+        env["NEURALCOL_SITTING_STOP_AT"] = stop_at
     cmd = [sys.executable, "-m", "experiments.run", "dataset=scape", "autoencoder=tiny", "detector=tiny",
            # the realistic set is not compared here (test_run, test_api cover it)
            "realistic.enabled=false", "speed_accuracy.enabled=false",
@@ -147,3 +151,28 @@ def test_a_finished_run_is_not_resumed_and_resume_false_starts_afresh(reference,
         assert find_interrupted_run(fresh) is None, "other overrides: another experiment"
     finally:
         (done / "metrics.json.bak").rename(done / "metrics.json")
+
+
+def test_a_sitting_stops_at_a_round_and_the_same_command_finishes_the_run(reference, scape_dir):
+    """max_minutes (issue 42): a sitting stops at a safe point with exit code 75, saying where, and the same command
+    goes on from there; the finished run equals the uninterrupted one, and sittings.json holds both sittings."""
+    base, cache, ((dc_ref, m_ref), _) = reference
+    out, data = base / "sittings", [str(scape_dir.parent), "max_minutes=600"]
+    proc = _run(data, out, cache, stop_at="the end of round 0")
+    assert proc.returncode == 75, proc.stderr[-3000:]
+    assert "[sitting] stopped at the end of round 0 (|D_c| = 180)" in proc.stdout
+    (run_dir,) = _run_dirs(out)
+    assert not (run_dir / "metrics.json").exists()
+    first = json.loads((run_dir / "sittings.json").read_text())["sittings"]
+    assert len(first) == 1 and first[0]["stopped_at"].startswith("the end of round 0")
+    assert "detector" in first[0]["stages"] and not first[0]["finished"]
+    proc = _run(data, out, cache)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert f"resuming the interrupted run in {run_dir}" in proc.stdout
+    dc, metrics = _result(run_dir)
+    for k in dc_ref:
+        np.testing.assert_array_equal(dc[k], dc_ref[k], err_msg=k)
+    assert metrics == m_ref
+    sittings = json.loads((run_dir / "metrics.json").read_text())["sittings"]
+    assert sittings["n"] == 2 and sittings["stage_seconds"]["detector"] > 0
+    assert json.loads((run_dir / "sittings.json").read_text())["sittings"][1]["finished"]

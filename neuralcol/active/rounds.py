@@ -23,6 +23,7 @@ from neuralcol.active.acquisition import UniformAcquisition
 from neuralcol.active.stopping import should_stop
 from neuralcol.samples.datamodule import CollisionDataModule
 from neuralcol.samples.store import Origin
+from neuralcol.utils import sitting
 from neuralcol.utils.faults import fault_point
 from neuralcol.utils.safe_files import plain_values
 
@@ -224,7 +225,8 @@ class RoundCallback(L.Callback):
             self.stopped_by = "elbow" if self.round < self.max_rounds else "max_rounds"
             trainer.should_stop = True
         else:
-            new = self.acquire(self.round + 1, pl_module.on_codes, self.dm.store, self.n_aug)
+            with sitting.held():  # the round's checkpoint (below) records the acquired rows: no stop before it
+                new = self.acquire(self.round + 1, pl_module.on_codes, self.dm.store, self.n_aug)
             self.dm.append(new.z, new.pd, new.pd_sub, new.collides, new.subset, self.round + 1, new.origin)
             self.seconds["label"] += new.label_seconds
             self.seconds["project"] += new.project_seconds
@@ -246,3 +248,5 @@ class RoundCallback(L.Callback):
         # weights_only here picks what is saved (the whole training state, optimizer and callbacks included); the
         # checkpoint holds plain values only and is read back with weights_only=True (stages/detector.py)
         trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
+        if not self.finished:  # a finished round, saved: a safe point of a time-budgeted sitting (max_minutes)
+            sitting.check(f"the end of round {self.round - 1} (|D_c| = {len(self.dm)})")

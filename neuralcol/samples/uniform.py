@@ -31,6 +31,7 @@ from filelock import FileLock
 from neuralcol.nn.latent_space import LatentSpace
 from neuralcol.samples.oracle import LatentOracle
 from neuralcol.samples.store import CollisionRows, CollisionStore, Origin, StoreCorruptedError
+from neuralcol.utils import sitting
 
 BLOCK = 1024
 LABEL_CHUNK = 2048  # rows labeled and committed together
@@ -135,4 +136,6 @@ def uniform_rows(path: str | os.PathLike, oracle: LatentOracle, n: int, seed: in
             if failed > 8 + consumed // 2:
                 raise RuntimeError(f"{path}: {failed} of the {consumed} codes labeled now could not be labeled "
                                    "(see the warnings above); the labeler or the decoder is broken")
+            if len(store) < n:  # a committed batch: a safe point of a time-budgeted sitting (max_minutes)
+                sitting.check(f"labeling {path.name} ({len(store)} of {n} rows)")
         return UniformRows(store.read(slice(0, n)), seconds, labeled, failed)
