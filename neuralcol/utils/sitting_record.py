@@ -36,6 +36,7 @@ class SittingRecord:
 
     def _write(self) -> None:
         self.current["minutes"] = round((time.monotonic() - self.t0) / 60.0, 3)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
         write_json_atomic(self.path, {"sittings": self.records})
 
     def stage(self, name: str, seconds: float) -> None:
