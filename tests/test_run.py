@@ -103,6 +103,24 @@ def test_realistic_training_meshes_of_the_one_detector(overrides, sizes):
     assert "mesh_detector" not in _compose(overrides)
 
 
+def test_paper_scale_scape_presets_have_the_papers_sizes():
+    """Issue 42: experiment=paper_scape is the paper's configuration (bilevel autoencoder, 3000 epochs a level, the
+    latent-only detector at p > 0.5, Algorithm 1), experiment=paper_scape_neuralcol neuralcol's defaults, both at
+    N_init 2e5, N_aug 5e4, 7 rounds (5.5e5 labels), 100 / 50 epochs, 1e4 handler inputs, a U(Z) test set of 1e5."""
+    paper, ours = _compose(["experiment=paper_scape"]), _compose(["experiment=paper_scape_neuralcol"])
+    for cfg in (paper, ours):
+        d = cfg.detector
+        assert (d.n_init, d.n_aug, d.max_rounds, d.n_init + d.max_rounds * d.n_aug) == (200000, 50000, 7, 550000)
+        assert (d.epochs, d.finetune_epochs, d.test_size, cfg.handler.n_inputs) == (100, 50, 100000, 10000)
+        assert cfg.max_minutes is None and d.targets.training_labels == "limited"
+    assert (paper.autoencoder.kind, paper.autoencoder.level1.epochs, paper.autoencoder.level2.epochs) == (
+        "bilevel", 3000, 3000)
+    assert (paper.detector.inputs, paper.detector.operating_fnr, paper.method.name) == ("latent", None, "active_paper")
+    assert (ours.autoencoder.kind, ours.detector.inputs, ours.detector.operating_fnr, ours.method.name) == (
+        "pca", "code_and_mesh", 0.1, "active")
+    assert _compose(["experiment=paper_scape", "method=supv", "detector.test_size=750000"]).detector.test_size == 750000
+
+
 def test_paper_datasets_present():
     assert {"scape", "swing", "jump", "skirt", "hand", "proc_hand", "proc_cloth"} <= set(DATASETS)
 
