@@ -21,7 +21,8 @@ def _compose(overrides):
 
 
 @pytest.mark.parametrize("preset", ["", "experiment=cpu_scape", "experiment=paper_scape",
-                                    "experiment=paper_scape_neuralcol", "experiment=cpu_anny_body", "experiment=paper_anny_body", "detector=tiny",
+                                    "experiment=paper_scape_neuralcol", "experiment=cpu_anny_body",
+                                    "experiment=paper_anny_body", "detector=tiny",
                                     "method=supv", "method=supv_bd", "method.start=uncertain"])
 def test_shipped_configs_are_valid(preset):
     assert config_problems(_compose([preset] if preset else [])) == []
