@@ -1,6 +1,7 @@
-"""``training_labels``: samples per second of D_c's labels for training (clearances capped at the targets' floor,
-issue 42) against the full labels, through the same LatentOracle and LabelPool (2 workers), interleaved, on uniform
-codes of a finished SCAPE run's latent space; and whether verdicts, subsets and clipped targets are identical."""
+"""``training_labels``: samples per second of D_c's labels for training as issue 42 makes them (clearances capped at
+the targets' floor, codes decoded in the pool's workers) against the path before it (codes decoded here, full
+labels on the workers), one 2-worker LabelPool, interleaved, on uniform codes of a finished SCAPE run's latent
+space; and whether verdicts, subsets and clipped targets are identical."""
 
 from __future__ import annotations
 
@@ -34,25 +35,32 @@ def measure(ctx: BenchContext) -> dict:
         train(z[:64])  # workers started and warm outside the timing
         out = {}
 
-        def once(oracle, key):
-            out[key] = oracle(z)
+        def before():  # issue 41's path: decode here, full labels on the workers
+            out["full"] = pool.label_report(full.decode(z)).labels
 
-        tf, tt = repeat_interleaved(lambda: once(full, "full"), lambda: once(train, "train"), 3 if ctx.quick else 5)
+        def now():
+            out["train"] = train(z)
+
+        tf, tt = repeat_interleaved(before, now, 3 if ctx.quick else 5)
     a, b = out["full"], out["train"]
 
-    def rows(lab):
-        m = len(lab.z)
-        return CollisionRows(lab.z, lab.pd, lab.pd_sub, lab.collides, lab.subset, np.zeros(m, np.int16),
+    def rows(lab, subset):
+        m = len(lab.pd)
+        return CollisionRows(z.numpy(), lab.pd, lab.pd_sub, lab.collides, subset, np.zeros(m, np.int16),
                              np.zeros(m, np.int8), np.arange(m))
 
+    sub_a = run.labeler.subsets(a.pd)
+
     cap = run.labeler.cap
-    same_targets = all(torch.equal(x, y) for x, y in zip(detector_targets(rows(a), cap, clip, pd_floor=floor),
-                                                         detector_targets(rows(b), cap, clip, pd_floor=floor)))
-    identical = bool(np.array_equal(a.collides, b.collides) and np.array_equal(a.subset, b.subset) and same_targets)
-    ctx.notes["training_labels"] = (f"{n} uniform codes of {where(run_dir)} (SCAPE), full labels against labels for "
-                                    f"training (clearances capped at {-floor:g} caps), same LatentOracle and 2-worker "
-                                    f"LabelPool, interleaved; verdicts, subsets and clipped targets identical: "
-                                    f"{identical}; colliding share {float(np.mean(a.collides)):.3f}")
+    same_targets = all(torch.equal(x, y) for x, y in zip(detector_targets(rows(a, sub_a), cap, clip, pd_floor=floor),
+                                                         detector_targets(rows(b, b.subset), cap, clip,
+                                                                          pd_floor=floor)))
+    identical = bool(np.array_equal(a.collides, b.collides) and np.array_equal(sub_a, b.subset) and same_targets)
+    ctx.notes["training_labels"] = (
+        f"{n} uniform codes of {where(run_dir)} (SCAPE), before issue 42 (decoded here, full labels) against labels "
+        f"for training (clearances capped at {-floor:g} caps, decoded in the workers), one 2-worker LabelPool, "
+        f"interleaved; verdicts, subsets and clipped targets identical: {identical}; colliding share "
+        f"{float(np.mean(a.collides)):.3f}")
     if not identical:
         raise AssertionError("training labels: verdicts, subsets or clipped targets differ from the full labels")
     full_r = summarize([n / t for t in tf])

@@ -76,3 +76,19 @@ def two_spheres(offset: float) -> tuple[np.ndarray, np.ndarray]:
     s = trimesh.creation.icosphere(subdivisions=1)
     v, f = np.asarray(s.vertices, np.float64), np.asarray(s.faces, np.int64)
     return np.concatenate([v, v + [offset, 0.0, 0.0]]), np.concatenate([f, f + len(v)])
+
+
+class SphereDecoder:
+    """A stand-in decoder for ``LabelPool.label_codes_report``: code (offset, m) -> two spheres ``offset`` apart,
+    NaN vertices when m > 2.4, the RAISE sentinel when m > 2.7; it records the pid of the process that decoded."""
+
+    def __call__(self, codes: np.ndarray) -> np.ndarray:
+        out = []
+        for offset, m in np.asarray(codes, np.float64):
+            v = two_spheres(offset)[0]
+            if m > 2.7:
+                v = mark(v, RAISE)
+            elif m > 2.4:
+                v[3] = np.nan
+            out.append(v)
+        return np.stack(out) if out else np.zeros((0, 2 * 162, 3))

@@ -207,3 +207,21 @@ def test_decode_vertices_equals_full_decode_and_its_gradient():
     assert torch.allclose(single, full[0, idx].detach(), atol=1e-10, rtol=0)
     with pytest.raises(ValueError, match="vertex indices"):
         acap.decode_vertices(f.detach(), [len(rest)])
+
+
+def test_acap_survives_pickling_with_the_same_decode():
+    """A pickled ACAP (the label pool's workers decode with one, issue 42) factorises its Laplacian again and
+    decodes bit for bit like the original."""
+    import pickle
+
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=2)
+    rest = np.asarray(s.vertices, np.float64)
+    acap = ACAP(rest, np.asarray(s.faces))
+    posed = rest * np.array([1.2, 0.9, 1.0]) + 0.05 * np.sin(3 * rest)
+    feats = acap.encode(torch.as_tensor(posed[None]))
+    copy = pickle.loads(pickle.dumps(acap))
+    assert torch.equal(copy.decode(feats), acap.decode(feats))
+    with torch.no_grad():
+        assert torch.equal(copy.decode(feats, fast=True), acap.decode(feats, fast=True))

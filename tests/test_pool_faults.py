@@ -266,3 +266,29 @@ def test_training_oracle_gives_the_full_labels_clipped_targets_and_its_own_pool(
         uniform_rows(tmp_path / "u.h5", limited, 8, seed=1)
     uniform_rows(tmp_path / "v.h5", limited, 4, seed=1)
     assert uniform_rows(tmp_path / "v.h5", limited, 6, seed=1).labeled == 2
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_codes_decoded_where_they_are_labeled_get_the_labels_of_their_meshes(setup, workers):
+    """label_codes_report(codes, decoder): the decoder runs in the workers (sent once; a new decoder restarts them);
+    the labels equal label_report on the decoded meshes, non-finite meshes and raising ones are reported."""
+    from fault_labelers import SphereDecoder
+
+    _, faulty, _ = setup
+    codes = np.array([[1.5, 0.0], [2.6, 2.5], [3.0, 0.1], [1.2, 2.9], [2.5, 0.5], [1.9, 1.0], [2.2, 0.2]], np.float32)
+    dec = SphereDecoder()
+    with LabelPool(faulty, workers=workers, chunk_size=3) as pool:
+        want = pool.label_report(dec(codes), clearance_limit=0.05)
+        got = pool.label_codes_report(codes, dec, clearance_limit=0.05)
+        assert [f.index for f in got.failures] == [1, 3]
+        assert got.failures[0].reason == "non-finite vertices" and "ValueError" in got.failures[1].reason
+        np.testing.assert_array_equal(got.ok, want.ok)
+        for name in Labels._fields:
+            np.testing.assert_array_equal(getattr(got.labels, name), getattr(want.labels, name), err_msg=name)
+        if workers:
+            pids = set(pool._pids)
+            pool.label_codes_report(codes[:2], dec)
+            assert pool._pids == pids, "the same decoder keeps the workers"
+            again = pool.label_codes_report(codes, SphereDecoder(), clearance_limit=0.05)
+            assert pool._pids and pool._pids != pids, "a new decoder restarts them"
+            np.testing.assert_array_equal(again.labels.pd, got.labels.pd)

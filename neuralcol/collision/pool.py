@@ -77,8 +77,10 @@ from neuralcol.collision.pool_common import (
     STARTUP_TIMEOUT,
     Batch,
     Task,
+    checked_vertices,
     failure_reason,
     label_chunk,
+    label_code_chunk,
     submit_ready,
     warm_up,
 )
@@ -94,6 +96,7 @@ DASK_INSTALL = 'pip install "dask[distributed]"'
 # The labeler of a worker process of a LabelPool, set once by `_init_worker` (the process's own state;
 # never set in the parent process).
 _WORKER_LABELER: ExactLabeler | None = None
+_WORKER_DECODER = None  # the codes -> vertices decoder of label_codes_report, sent once per worker like the labeler
 
 
 class LabelFailure(NamedTuple):
@@ -135,12 +138,13 @@ def format_failures(failures: list[LabelFailure], n: int) -> str:
     return f"{len(failures)} of {n} meshes could not be labelled: {shown}{more}"
 
 
-def _init_worker(labeler: ExactLabeler) -> None:
-    """Initializer of the pool's worker processes: keep the labeler, sent once per worker, and warm it up
+def _init_worker(labeler: ExactLabeler, decoder=None) -> None:
+    """Initializer of the pool's worker processes: keep the labeler (and the decoder of
+    :meth:`LabelPool.label_codes_report`), sent once per worker, and warm it up
     (:func:`~neuralcol.collision.pool_common.warm_up`) before the worker takes a chunk, outside any chunk's
     timeout."""
-    global _WORKER_LABELER
-    _WORKER_LABELER = labeler
+    global _WORKER_LABELER, _WORKER_DECODER
+    _WORKER_LABELER, _WORKER_DECODER = labeler, decoder
     warm_up(labeler)
 
 
@@ -164,6 +168,14 @@ def _label_chunk(chunk: np.ndarray, clearance_limit: float | None = None) -> lis
     if _WORKER_LABELER is None:
         raise RuntimeError("LabelPool worker has no labeler; _label_chunk must run in a pool made by LabelPool")
     return label_chunk(_WORKER_LABELER, chunk, clearance_limit)
+
+
+def _label_code_chunk(codes: np.ndarray, clearance_limit: float | None = None) -> list[Label | str]:
+    """Labels of a chunk of codes (C, D), decoded here by the decoder :func:`_init_worker` installed."""
+    if _WORKER_LABELER is None or _WORKER_DECODER is None:
+        raise RuntimeError("LabelPool worker has no labeler or decoder; _label_code_chunk must run in a pool made "
+                           "by LabelPool.label_codes_report")
+    return label_code_chunk(_WORKER_LABELER, _WORKER_DECODER, codes, clearance_limit)
 
 
 def _death_reason(exit_codes: list[int | None]) -> str:
@@ -291,6 +303,7 @@ class LabelPool:
         self._finalizer: weakref.finalize | None = None
         self._procs: list = []  # the worker processes of _own_executor (multiprocessing.Process)
         self._pids: set[int] = set()  # their pids, as reported by the start-up probes
+        self._decoder = None  # the decoder the workers hold (label_codes_report)
 
     # ------------------------------------------------------------------ lifecycle
     def _process_executor(self) -> cf.ProcessPoolExecutor:
@@ -298,7 +311,7 @@ class LabelPool:
         if self._own_executor is None:
             executor = cf.ProcessPoolExecutor(
                 max_workers=self.workers, mp_context=multiprocessing.get_context(self.mp_context),
-                initializer=_init_worker, initargs=(self.labeler,))
+                initializer=_init_worker, initargs=(self.labeler, self._decoder))
             self._own_executor = executor
             # shut the workers down if the pool is dropped without close()
             self._finalizer = weakref.finalize(self, executor.shutdown, wait=False, cancel_futures=True)
@@ -380,23 +393,7 @@ class LabelPool:
 
     # ------------------------------------------------------------------ labelling
     def _check(self, vertices, allow_non_finite: bool = False) -> np.ndarray:
-        if hasattr(vertices, "detach"):  # torch tensor, without importing torch
-            vertices = vertices.detach().cpu().numpy()
-        v = np.asarray(vertices)
-        n = self.labeler.n_vertices
-        if v.ndim != 3 or v.shape[1:] != (n, 3):
-            raise ValueError(f"LabelPool.label: vertices have shape {v.shape}, expected (B, {n}, 3) for this "
-                             f"labeler's mesh; add a batch axis for a single mesh (vertices[None])")
-        if not np.issubdtype(v.dtype, np.number) or np.issubdtype(v.dtype, np.complexfloating):
-            raise ValueError(f"LabelPool.label: vertices have dtype {v.dtype}, expected real floats")
-        v = np.ascontiguousarray(v, dtype=np.float64)
-        if not allow_non_finite:
-            finite = np.isfinite(v).all(axis=(1, 2))  # (B,)
-            if not finite.all():
-                bad = np.flatnonzero(~finite)
-                raise ValueError(f"LabelPool.label: meshes {bad[:10].tolist()}{' ...' if len(bad) > 10 else ''} "
-                                 "of the batch contain NaN or inf vertices; cannot label them")
-        return v
+        return checked_vertices(vertices, self.labeler.n_vertices, allow_non_finite)
 
     def label(self, vertices, clearance_limit: float | None = None) -> Labels:
         """Labels of a batch of meshes, in input order.
@@ -445,9 +442,38 @@ class LabelPool:
             log.warning("%s: %s", self.desc, format_failures(report.failures, len(v)))
         return report
 
-    def _run(self, v: np.ndarray, skip: dict[int, str] | None = None,
-             clearance_limit: float | None = None) -> LabelReport:
-        """Label every mesh of ``v`` (B, V, 3) float64 except ``skip`` (index -> reason, reported as is)."""
+    def label_codes_report(self, codes, decoder, clearance_limit: float | None = None) -> LabelReport:
+        """:meth:`label_report` of the meshes ``decoder`` makes of latent codes, decoded where they are labeled:
+        on the pool's worker processes (``workers`` >= 2; the decoder is sent to them once, like the labeler, and
+        a new decoder restarts them), chunk by chunk in this process (``workers`` 0 or 1), or here before the
+        chunks leave (dask, a user executor). Non-finite decoded meshes are reported as ``"non-finite
+        vertices"``.
+
+        Args:
+            codes: (B, D) float array.
+            decoder: picklable callable, codes (C, D) -> vertices (C, V, 3); the same object on every call keeps
+                the workers (e.g. :class:`~neuralcol.samples.oracle.SpaceDecoder`).
+            clearance_limit: as :meth:`label`.
+        """
+        codes = np.ascontiguousarray(np.asarray(codes, dtype=np.float32))
+        if codes.ndim != 2:
+            raise ValueError(f"LabelPool.label_codes_report: codes have shape {codes.shape}, expected (B, D)")
+        limit = check_clearance_limit(clearance_limit)
+        if self.executor != "local":  # dask or the user's executor: vertices travel, as in label_report
+            return self.label_report(decoder(codes) if len(codes) else np.zeros((0, self.labeler.n_vertices, 3)),
+                                     clearance_limit=limit)
+        if self.workers >= 2 and decoder is not self._decoder:
+            self._discard_executor(kill=False)  # the workers get the new decoder when they start again
+            self._decoder = decoder
+        report = self._run(codes, clearance_limit=limit, decoder=decoder)
+        if report.failures:
+            log.warning("%s: %s", self.desc, format_failures(report.failures, len(codes)))
+        return report
+
+    def _run(self, v: np.ndarray, skip: dict[int, str] | None = None, clearance_limit: float | None = None,
+             decoder=None) -> LabelReport:
+        """Label every mesh of ``v`` (B, V, 3) float64 except ``skip`` (index -> reason, reported as is); with
+        ``decoder``, ``v`` holds codes (B, D) that are decoded where each chunk is labeled."""
         n, k = len(v), self.labeler.n_parts
         todo = np.setdiff1d(np.arange(n), np.fromiter(skip or {}, dtype=np.int64, count=len(skip or {})))
         # chunks of consecutive meshes to label (the skipped ones are left out)
@@ -460,14 +486,17 @@ class LabelPool:
                 queue = collections.deque(tasks)
                 while queue:
                     task = queue.popleft()
-                    queue.extend(batch.settle(task, label_chunk(self.labeler, v[task.idx], clearance_limit)))
+                    chunk = v[task.idx]
+                    out = (label_chunk(self.labeler, chunk, clearance_limit) if decoder is None else
+                           label_code_chunk(self.labeler, decoder, chunk, clearance_limit))
+                    queue.extend(batch.settle(task, out))
             elif self.executor == "dask":
                 from neuralcol.collision.pool_dask import run_dask
 
                 if tasks:
                     run_dask(self, self._dask_session(), v, tasks, batch)
             else:
-                self._run_executor(v, tasks, batch)
+                self._run_executor(v, tasks, batch, decoder)
         for i in np.flatnonzero([r is None and i not in batch.failures for i, r in enumerate(batch.results)]):
             batch.failures[int(i)] = "not labelled"  # cannot happen; never report a missing label as a success
         ok = np.array([r is not None for r in batch.results], dtype=bool)
@@ -477,7 +506,7 @@ class LabelPool:
         failures = [LabelFailure(i, batch.failures[i]) for i in sorted(batch.failures)]
         return LabelReport(labels, ok, failures)
 
-    def _run_executor(self, v: np.ndarray, tasks: list[Task], batch: Batch) -> None:
+    def _run_executor(self, v: np.ndarray, tasks: list[Task], batch: Batch, decoder=None) -> None:
         """Label ``tasks`` on the pool's worker processes (at most ``workers`` chunks in flight, faults handled
         as the module docstring says) or on the user's executor (all submitted at once)."""
         own = self._user_executor is None
@@ -493,7 +522,8 @@ class LabelPool:
             task = queue[0]
             chunk = v[task.idx]
             if own:
-                fut = self._process_executor().submit(_label_chunk, chunk, batch.clearance_limit)
+                fut = self._process_executor().submit(_label_chunk if decoder is None else _label_code_chunk, chunk,
+                                                      batch.clearance_limit)
             else:
                 fut = self._user_executor.submit(label_chunk, self.labeler, chunk, batch.clearance_limit)
             in_flight[fut] = (queue.popleft(), time.monotonic())

@@ -37,6 +37,17 @@ def warm_up(labeler) -> None:
             pass
 
 
+def _label_limited(labeler):
+    """The labeler's ``label_limited``, or None if it has none or a subclass overrides ``label`` below the class
+    that defines it (that label is the one to honor: its result is capped instead)."""
+    fn = getattr(labeler, "label_limited", None)
+    if fn is None:
+        return None
+    mro = type(labeler).__mro__
+    owner = {name: next((c for c in mro if name in vars(c)), None) for name in ("label", "label_limited")}
+    return fn if mro.index(owner["label_limited"]) <= mro.index(owner["label"]) else None
+
+
 def label_chunk(labeler: ExactLabeler, chunk: np.ndarray, clearance_limit: float | None = None) -> list[Label | str]:
     """Labels of a chunk (C, V, 3) float64 with the given labeler (self-contained task for any executor).
 
@@ -66,7 +77,7 @@ def label_chunk(labeler: ExactLabeler, chunk: np.ndarray, clearance_limit: float
                 ok = np.isfinite(lb.pd) and np.isfinite(lb.pd_sub).all()
                 out.append(lb if ok else f"non-finite label (pd={lb.pd})")
             return out
-    limited = getattr(labeler, "label_limited", None) if clearance_limit is not None else None
+    limited = _label_limited(labeler) if clearance_limit is not None else None
     for v in chunk:
         try:
             if clearance_limit is None:
@@ -83,6 +94,44 @@ def label_chunk(labeler: ExactLabeler, chunk: np.ndarray, clearance_limit: float
         else:
             out.append(lb)
     return out
+
+
+def label_code_chunk(labeler: ExactLabeler, decoder, codes: np.ndarray,
+                     clearance_limit: float | None = None) -> list[Label | str]:
+    """Labels of the meshes that ``decoder`` makes of a chunk of latent codes (C, D): :func:`label_chunk` on the
+    finite ones, ``"non-finite vertices"`` for the others. ``decoder``: codes (C, D) -> vertices (C, V, 3) float64
+    (e.g. :class:`~neuralcol.samples.oracle.SpaceDecoder`), run where the chunk is labeled (a pool's worker)."""
+    try:
+        v = np.asarray(decoder(codes), dtype=np.float64)
+    except Exception as exc:  # the decoder itself failed: every code of the chunk reports it
+        return [failure_reason(exc)] * len(codes)
+    finite = np.isfinite(v).all(axis=(1, 2))
+    out: list[Label | str] = ["non-finite vertices"] * len(codes)
+    labeled = label_chunk(labeler, v[finite], clearance_limit) if finite.any() else []
+    for i, lb in zip(np.flatnonzero(finite), labeled):
+        out[i] = lb
+    return out
+
+
+def checked_vertices(vertices, n: int, allow_non_finite: bool = False) -> np.ndarray:
+    """A batch of meshes (B, n, 3) (numpy or a torch tensor) as contiguous float64; ValueError naming the problem
+    (wrong shape or dtype; non-finite vertices unless ``allow_non_finite``)."""
+    if hasattr(vertices, "detach"):  # torch tensor, without importing torch
+        vertices = vertices.detach().cpu().numpy()
+    v = np.asarray(vertices)
+    if v.ndim != 3 or v.shape[1:] != (n, 3):
+        raise ValueError(f"LabelPool.label: vertices have shape {v.shape}, expected (B, {n}, 3) for this "
+                         f"labeler's mesh; add a batch axis for a single mesh (vertices[None])")
+    if not np.issubdtype(v.dtype, np.number) or np.issubdtype(v.dtype, np.complexfloating):
+        raise ValueError(f"LabelPool.label: vertices have dtype {v.dtype}, expected real floats")
+    v = np.ascontiguousarray(v, dtype=np.float64)
+    if not allow_non_finite:
+        finite = np.isfinite(v).all(axis=(1, 2))  # (B,)
+        if not finite.all():
+            bad = np.flatnonzero(~finite)
+            raise ValueError(f"LabelPool.label: meshes {bad[:10].tolist()}{' ...' if len(bad) > 10 else ''} "
+                             "of the batch contain NaN or inf vertices; cannot label them")
+    return v
 
 
 def submit_ready(normal, suspects, in_flight, limit: int, submit) -> None:

@@ -232,7 +232,8 @@ class ACAP:
             raise ValueError(f"the mesh has {n_comp} connected components; ACAP needs one connected mesh")
         keep = np.setdiff1d(np.arange(n_vert), [self.root])
         self._keep = torch.as_tensor(keep)
-        self._lu = splu(lap[keep][:, keep].tocsc())
+        self._lap_pinned = lap[keep][:, keep].tocsc()  # kept to factorise again after unpickling (SuperLU is not
+        self._lu = splu(self._lap_pinned)  # picklable; a label pool's workers decode with a pickled copy, issue 42)
         self._rest_centroid = q.mean(0)
         # decode right-hand side: b_i += w (T_i + T_j)/2 (q_i - q_j), b_j -= same, per undirected edge
         self._edge_i = torch.as_tensor(self.edges[:, 0])
@@ -244,6 +245,15 @@ class ACAP:
         self._edge_j_np = np.ascontiguousarray(self.edges[:, 1], dtype=np.int64)
         self._edge_vec_w_np = np.ascontiguousarray(self._edge_vec_w.numpy(), dtype=np.float64)
         self._keep_np = keep
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state.pop("_lu", None)  # SuperLU cannot be pickled: factorised again from the pinned Laplacian
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._lu = splu(self._lap_pinned)
 
     # ------------------------------------------------------------------ encode
     def _mean_edge_length(self, verts: np.ndarray) -> np.ndarray:

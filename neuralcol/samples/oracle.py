@@ -7,6 +7,9 @@ values are split into D_p / D_n / D_b (paper eq. 1) with the labeler's ``eps``.
 
 from __future__ import annotations
 
+import multiprocessing
+import os
+import pickle
 import time
 from typing import NamedTuple
 
@@ -52,6 +55,40 @@ class OracleLabels(NamedTuple):
                              collides=self.collides[keep], subset=self.subset[keep], ok=None)
 
 
+class SpaceDecoder:
+    """A latent space's decoder as the label pool's workers run it (:meth:`~neuralcol.collision.pool.LabelPool.
+    label_codes_report`): codes (C, D) -> vertices (C, V, 3) float64, without gradients, on one torch thread per
+    process (two workers on two cores). A chunk of one code is decoded as two rows and the first kept, so every
+    code goes through the same batched product as in a chunk (a single row takes torch's matrix-vector path,
+    which rounds differently)."""
+
+    def __init__(self, space: LatentSpace):
+        self.space = space
+        self._pid = None
+
+    def __call__(self, codes) -> np.ndarray:
+        if self._pid != os.getpid():  # first call in this process: a pool's worker decodes on one thread
+            self._pid = os.getpid()
+            if multiprocessing.parent_process() is not None:
+                torch.set_num_threads(1)
+        z = torch.as_tensor(np.asarray(codes, np.float32)).to(self.space.box_lo)
+        one = len(z) == 1
+        if one:
+            z = z.repeat(2, 1)
+        with torch.no_grad():
+            v = self.space.decode(z).cpu().numpy().astype(np.float64)
+        return v[:1] if one else v
+
+    def __getstate__(self):
+        # the space as plain pickle bytes: multiprocessing's pickler would send its tensors through torch's shared
+        # memory, and workers started with such tensors crashed in their first numba call (SIGSEGV, stop 49)
+        return {"space_bytes": pickle.dumps(self.space)}
+
+    def __setstate__(self, state):
+        self.space = pickle.loads(state["space_bytes"])
+        self._pid = None
+
+
 def training_clearance_limit(cap: float, pd_floor: float) -> float:
     """The clearance limit of labels for training: ``-pd_floor * cap`` grown by 1e-9 of itself, so that a capped
     clearance ``-limit`` divided by ``cap`` lands below ``pd_floor`` in floating point (clipped to it exactly)."""
@@ -64,13 +101,14 @@ class LatentOracle:
     Args:
         space: the latent space (decoder, box, partition into sub-domains).
         pool: a label pool whose labeler uses ``space.partition`` (so ``pd_sub`` has K columns).
-        decode_batch: codes decoded per batch (bounds the memory of the decoded vertices).
+        decode_batch: codes decoded per batch by :meth:`decode` (the labels' codes are decoded chunk by chunk
+            where they are labeled, :class:`SpaceDecoder`).
         clearance_limit: None: full labels; a length: clearances capped there, the labels for training whose
             clipped targets equal the full label's (:meth:`for_training`, issue 42).
     """
 
     def __init__(self, space: LatentSpace, pool: LabelPool, decode_batch: int = 256,
-                 clearance_limit: float | None = None):
+                 clearance_limit: float | None = None, decoder: SpaceDecoder | None = None):
         if pool.labeler.n_parts != space.n_parts:
             raise ValueError(f"the pool's labeler has {pool.labeler.n_parts} parts but the latent space has "
                              f"{space.n_parts} sub-domains; build the labeler with partition=space.partition")
@@ -78,6 +116,7 @@ class LatentOracle:
         self.pool = pool
         self.decode_batch = int(decode_batch)
         self.clearance_limit = None if clearance_limit is None else float(clearance_limit)
+        self.decoder = SpaceDecoder(space) if decoder is None else decoder  # run where the labels are made
 
     def for_training(self, pd_floor: float | None) -> LatentOracle:
         """This oracle's labels for training: clearances capped just beyond ``-pd_floor`` caps (the detector's
@@ -89,7 +128,7 @@ class LatentOracle:
         if not float(pd_floor) < 0:
             raise ValueError(f"pd_floor={pd_floor} must be < 0 (detector.targets.pd_floor)")
         limit = training_clearance_limit(float(self.pool.labeler.cap), float(pd_floor))
-        return LatentOracle(self.space, self.pool, self.decode_batch, clearance_limit=limit)
+        return LatentOracle(self.space, self.pool, self.decode_batch, clearance_limit=limit, decoder=self.decoder)
 
     @property
     def eps(self) -> float:
@@ -112,8 +151,8 @@ class LatentOracle:
             k = self.space.n_parts
             return OracleLabels(np.zeros((0, self.space.dim), np.float32), np.zeros(0), np.zeros((0, k)),
                                 np.zeros(0, bool), np.zeros(0, np.int8), 0.0, np.zeros(0, bool), ())
-        # NaN/inf decoded meshes are reported, not labeled
-        report = self.pool.label_report(self.decode(z), clearance_limit=self.clearance_limit)
+        # decoded where they are labeled (the pool's workers); NaN/inf decoded meshes are reported, not labeled
+        report = self.pool.label_codes_report(z.numpy(), self.decoder, clearance_limit=self.clearance_limit)
         labels = report.labels
         subset = split_subsets(labels.pd, self.eps)
         subset[~report.ok] = -1
