@@ -27,7 +27,8 @@ TIMING = ("seconds", "_s", "ms_per", "_us", "batch_", "threads", "from_cache", "
 
 
 def _is_timing(path: str) -> bool:
-    return any(t in path.split(".")[-1] for t in TIMING) or "inference_us" in path
+    # "sittings": wall time per stage and sitting (max_minutes, issue 42)
+    return any(t in path.split(".")[-1] for t in TIMING) or "inference_us" in path or path.startswith("sittings.")
 
 
 def compare_metrics(a, b, path: str = "", out=None) -> dict:
