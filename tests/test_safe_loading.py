@@ -271,10 +271,19 @@ def test_no_unpickling_load_is_left_in_the_code():
     assert len(lines) > 1000  # the scan saw the code
     loads = {str(p) for p, _, line in lines if "torch.load(" in line}
     assert loads == {"neuralcol/utils/safe_files.py"}, loads
+    def unpickles(p, line):
+        return re.search(r"\bpickle\.loads?\(", line) and (str(p), line.strip()) not in IPC
+
     bad = [f"{p}:{no}: {line.strip()}" for p, no, line in lines
            if ("weights_only=False" in line and "save_checkpoint(" not in line)
-           or "allow_pickle=True" in line or re.search(r"\bpickle\.loads?\(", line)]
+           or "allow_pickle=True" in line or unpickles(p, line)]
     assert not bad, "\n".join(bad)
+    assert all(any(str(p) == q and line.strip() == t for p, _, line in lines) for q, t in IPC), "IPC: stale entry"
+
+
+# unpickling that is not reading a file: bytes this process pickled for its own label-pool workers (as
+# multiprocessing does with every task), so that torch's shared-memory tensors stay out of the workers (stop 49)
+IPC = {("neuralcol/samples/oracle.py", 'self.space = pickle.loads(state["space_bytes"])')}
 
 
 def test_load_run_refuses_a_config_naming_foreign_callables(tmp_path, tube_space):
