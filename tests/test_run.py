@@ -103,6 +103,12 @@ def test_realistic_training_meshes_of_the_one_detector(overrides, sizes):
     assert "mesh_detector" not in _compose(overrides)
 
 
+def test_make_run_preset_labels_12000_samples():
+    """Issue 41 item 4 (stop 49): `make run` re-sized to its 10-minute budget, 4 rounds of 2 000 after 4 000."""
+    cpu = _compose([]).dataset.cpu
+    assert (cpu.n_init, cpu.n_aug, cpu.max_rounds, cpu.n_init + cpu.max_rounds * cpu.n_aug) == (4000, 2000, 4, 12000)
+
+
 def test_paper_scale_scape_presets_have_the_papers_sizes():
     """Issue 42: experiment=paper_scape is the paper's configuration (bilevel autoencoder, 3000 epochs a level, the
     latent-only detector at p > 0.5, Algorithm 1), experiment=paper_scape_neuralcol neuralcol's defaults, both at
