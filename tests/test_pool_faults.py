@@ -173,15 +173,9 @@ class SphereSpace:
     box_hi = torch.tensor([3.0, 3.0], dtype=torch.float64)
 
     def decode(self, z: torch.Tensor) -> torch.Tensor:
-        out = []
-        for offset, m in z.tolist():
-            v = two_spheres(offset)[0]
-            if m > 2.7:
-                v = mark(v, RAISE)
-            elif m > 2.4:
-                v[3] = np.nan
-            out.append(v)
-        return torch.as_tensor(np.stack(out))
+        from fault_labelers import SphereDecoder
+
+        return torch.as_tensor(SphereDecoder()(z.numpy()))
 
 
 def test_oracle_reports_and_drops_failures(setup):
