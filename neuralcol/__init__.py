@@ -20,6 +20,8 @@ _EXPORTS = {
     "ExactLabeler": "neuralcol.collision.labeler",
     "LabelPool": "neuralcol.collision.pool",
     "load_run": "neuralcol.api",
+    "pretrained": "neuralcol.api",
+    "pack_run": "neuralcol.api",
     "TrainedRun": "neuralcol.api",
 }
 

@@ -16,6 +16,7 @@ Run directory (one run)::
     test_predictions.npz        the detector on the U(Z) test set  realistic_predictions.npz  on the realistic set
     cascade.npz                 the detector's logits on the cascade's calibration set and their exact labels
     handling/  examples/  round_examples/  subdomains.png  speed_accuracy.png  tensorboard/<stage>/
+    package.json  latent_space.pt   a packed run only (neuralcol.api.package: pretrained/<name>/)
 
 Cache directory (shared by runs)::
 
@@ -62,6 +63,8 @@ class RunDir:
     subdomains_png = _File("subdomains.png")
     speed_accuracy_png = _File("speed_accuracy.png")  # throughput against accuracy and FNR (neuralcol.stages.speed)
     tensorboard = _File("tensorboard")
+    latent_space = _File("latent_space.pt")  # a packed run's own latent space (neuralcol.api.package), else the cache's
+    package = _File("package.json")  # a packed run's manifest: source, figures, each file's size and SHA-256
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)

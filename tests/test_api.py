@@ -340,3 +340,45 @@ def test_export_features_decoder_above_the_dense_limit(run_dir, trained, fresh_c
         feats = torch.jit.load(str(tmp_path / "decoder.pt"))(fresh_codes)
         torch.testing.assert_close(feats, trained.space.decode_features(fresh_codes), rtol=0, atol=1e-5)
         torch.testing.assert_close(trained.space.acap.decode(feats), trained.decode(fresh_codes), rtol=0, atol=1e-5)
+
+
+def test_pack_run_loads_without_cache_or_data(run_dir, trained, tmp_path, monkeypatch, capsys):
+    """A packed run (neuralcol.api.package) loads from its folder alone: the cache moved away, the paths reset, the
+    same detector and decoder; its manifest lists each file's checksum, and a changed file is named."""
+    import neuralcol
+    from experiments.pack import main as pack_main
+    from neuralcol.api.package import check_package
+
+    out = tmp_path / "pkg"
+    pack_main([str(run_dir), str(out), "--note", "tiny", "--check", "64", "--workers", "0"])
+    check = json.loads(capsys.readouterr().out)
+    assert check["n"] + check["n_failed"] == 64 and 0 <= check["accuracy"] <= 1
+    manifest = check_package(out)
+    assert set(manifest["files"]) >= {".hydra/config.yaml", "metrics.json", "detector.pt", "latent_space.pt"}
+    assert manifest["figures"]["u_z"]["n"] == trained.metrics["detector"]["test_set"]["n"]
+    assert manifest["note"] == "tiny" and manifest["source"]["command"].startswith("python -m experiments.run")
+    cfg = OmegaConf.load(out / ".hydra" / "config.yaml")
+    assert OmegaConf.to_container(cfg.paths)["cache_dir"] == "${oc.env:NEURALCOL_CACHE,.cache}"
+    monkeypatch.setenv("NEURALCOL_CACHE", str(tmp_path / "empty_cache"))  # the run's cache is not read
+    z = _codes(trained, 5, 7)
+    with neuralcol.load_run(out) as packed:
+        torch.testing.assert_close(packed.detect(z).logit, trained.detect(z).logit, rtol=0, atol=0)
+        torch.testing.assert_close(packed.decode(z), trained.decode(z), rtol=0, atol=0)
+    with pytest.raises(UserInputError, match="exists; give --overwrite"):
+        neuralcol.pack_run(run_dir, out)
+    neuralcol.pack_run(run_dir, out, overwrite=True)
+    with pytest.raises(UserInputError, match="choose a new folder"):
+        neuralcol.pack_run(run_dir, run_dir, overwrite=True)  # never deletes a folder that is not a package
+    with open(out / "detector.pt", "r+b") as f:  # one byte changed
+        f.seek(100)
+        b = f.read(1)
+        f.seek(100)
+        f.write(bytes([b[0] ^ 1]))
+    with pytest.raises(UserInputError, match=r"detector.pt: .* checksum other than package.json"):
+        neuralcol.load_run(out)
+    neuralcol.pack_run(run_dir, out, overwrite=True)
+    (out / "latent_space.pt").write_text("version https://git-lfs.github.com/spec/v1\n")
+    with pytest.raises(UserInputError, match=r"latent_space.pt: a Git LFS pointer.*git lfs pull"):
+        check_package(out)
+    with pytest.raises(UserInputError, match="no shipped model named 'nothing'.*scape"):
+        neuralcol.pretrained("nothing")

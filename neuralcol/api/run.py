@@ -16,6 +16,7 @@ from neuralcol.api.files import (
     _run_settings,
     check_run_dir,
 )
+from neuralcol.api.package import check_package
 from neuralcol.api.resolve import ResolveMixin
 from neuralcol.api.results import Detection, check_removed_choice
 from neuralcol.errors import UserInputError
@@ -30,7 +31,8 @@ def load_run(run_dir: str | Path, device: str | torch.device = "cpu", workers: i
     """Load a finished run: its config, latent space and final detector.
 
     Args:
-        run_dir: output directory of a finished ``python -m experiments.run``.
+        run_dir: output directory of a finished ``python -m experiments.run``, or a packed run (``pretrained/<name>``,
+            ``python -m experiments.pack``: its latent space inside, its files checked against ``package.json``).
         device: where the detector and the latent space's network run (the ACAP solve is on the CPU).
         workers: label worker processes for :meth:`TrainedRun.label` (0, the default: in this process, which
             works from notebooks, stdin and scripts alike; N > 0 or None (the run's ``labeling.pool.workers``):
@@ -52,7 +54,9 @@ def load_run(run_dir: str | Path, device: str | torch.device = "cpu", workers: i
     _check_targets(cfg, rd.config, trust_config)
     cache_dir, temperature = _run_settings(cfg, rd.config)
     key = metrics["autoencoder"].get("cache_key")
-    space_path = CacheDir(cache_dir).latent_space(str(key))
+    if rd.package.is_file():  # a packed run (pretrained/<name>): its own latent space, every file checked
+        check_package(run_dir)
+    space_path = rd.latent_space if rd.latent_space.is_file() else CacheDir(cache_dir).latent_space(str(key))
     if key is None or not space_path.is_file():
         raise UserInputError(f"{space_path}: the run's latent space is not in the cache (paths.cache_dir="
                              f"{cache_dir}); run the same command again to rebuild it")
@@ -67,6 +71,29 @@ def load_run(run_dir: str | Path, device: str | torch.device = "cpu", workers: i
                              f"{space_path} has {space.dim}; the files belong to different runs: {retrain}")
     return TrainedRun(run_dir, cfg, metrics, space, net, pd_unit, temperature,
                       device=device, workers=workers, progress=progress)
+
+
+def pretrained_root() -> Path:
+    """The repository's ``pretrained/`` folder (beside the ``neuralcol`` package of a source checkout)."""
+    return Path(__file__).resolve().parents[2] / "pretrained"
+
+
+def pretrained(name: str = "scape", **load_kw):
+    """Load a package shipped in the repository's ``pretrained/`` folder, e.g. ``pretrained("scape")``
+    (keywords go to :func:`~neuralcol.load_run`).
+
+    Raises:
+        UserInputError: no such package (the message lists the shipped ones).
+    """
+    root = pretrained_root()
+    path = root / name
+    if not RunDir(path).package.is_file():
+        have = sorted(p.name for p in root.glob("*") if RunDir(p).package.is_file()) if root.is_dir() else []
+        raise UserInputError(f"{path}: no shipped model named {name!r} "
+                             + (f"(shipped: {', '.join(have)})" if have else
+                                "(no pretrained/ folder here: it comes with a clone of the repository; or give "
+                                "load_run a packed folder)"))
+    return load_run(path, **load_kw)
 
 
 class TrainedRun(CascadeMixin, ResolveMixin):
