@@ -20,13 +20,16 @@ def shipped(tmp_path_factory):
 
     import neuralcol
 
-    old = os.environ.get("NEURALCOL_CACHE")
-    os.environ["NEURALCOL_CACHE"] = str(tmp_path_factory.mktemp("no_cache"))  # nothing read from a cache
+    # nothing may be read from a cache or a data set: both point at empty folders while the package is used
+    old = {k: os.environ.get(k) for k in ("NEURALCOL_CACHE", "NEURALCOL_DATA")}
+    os.environ["NEURALCOL_CACHE"] = str(tmp_path_factory.mktemp("no_cache"))
+    os.environ["NEURALCOL_DATA"] = str(tmp_path_factory.mktemp("no_data"))
     try:
         with neuralcol.pretrained("scape", workers=0) as run:
             yield run
     finally:
-        os.environ.pop("NEURALCOL_CACHE") if old is None else os.environ.__setitem__("NEURALCOL_CACHE", old)
+        for k, v in old.items():
+            os.environ.pop(k, None) if v is None else os.environ.__setitem__(k, v)
 
 
 def test_the_shipped_files_match_their_manifest():
@@ -39,6 +42,7 @@ def test_the_shipped_files_match_their_manifest():
 
 
 def test_detect_and_resolve_scape_meshes(shipped, scape):
+    """detect, the certified cascade and resolve on SCAPE meshes, with no data set and no cache at hand."""
     verts = scape.vertices.numpy().astype(np.float64)
     assert shipped.n_vertices == verts.shape[1]
     det = shipped.detect(verts[:8])
@@ -52,6 +56,7 @@ def test_detect_and_resolve_scape_meshes(shipped, scape):
     mesh = meshes[np.flatnonzero(labels.collides)[0]]
     out = shipped.resolve(mesh[None])
     assert out.pd_input[0] > 0
+    assert shipped.detect(mesh[None], certify=0.01).collides.shape == (1,)
     assert np.isfinite(out.pd_after).all()
     assert out.pd_after[0] <= out.pd_input[0]
 
