@@ -56,11 +56,12 @@ from typing import NamedTuple
 import numpy as np
 
 from neuralcol.collision.kernels.broadphase import drop_adjacent, grid_pairs, triangle_aabbs
+from neuralcol.collision.kernels.clusters import cluster_boxes, rest_clusters, static_blocks
 from neuralcol.collision.kernels.depth import pair_depths, triangle_axes
 from neuralcol.collision.kernels.distance import corner_cones
 from neuralcol.collision.kernels.label_pass import finish_label, label_mesh, verdict_kernel
 from neuralcol.collision.kernels.pair_terms import near_table
-from neuralcol.collision.kernels.pruned_pass import far_pass, near_pass
+from neuralcol.collision.kernels.pruned_pass import far_pass, far_pass_clusters, near_pass
 from neuralcol.geometry.topology import edge_topology, vertex_neighbors
 
 
@@ -199,13 +200,16 @@ class ExactLabeler(MeshByMesh):
         prune: skip the pairs that provably cannot lower a part's clearance (default); False evaluates every
             pair within cap, the reference path (same labels, quadratic in the mesh density; see
             ``docs/labels.md``, "Scaling").
+        far_clusters: triangles per rest-mesh cluster (1-8) of the far pass's broadphase
+            (:mod:`~neuralcol.collision.kernels.clusters`); 0 uses one grid over every triangle instead, the path
+            before clusters (same labels bit for bit, slower).
     """
 
     backend = "cpu"  # labeling=cpu (conf/labeling/cpu.yaml)
 
     def __init__(self, faces, rest_vertices, partition=None, touch_tol: float = 1e-6,
                  clearance_cap: float = 0.01, boundary_eps: float = 2e-3, cell_factor: float = 2.0,
-                 prune: bool = True):
+                 prune: bool = True, far_clusters: int = 6):
         self.faces = np.ascontiguousarray(np.asarray(faces, dtype=np.int64))
         rest = np.ascontiguousarray(np.asarray(rest_vertices, dtype=np.float64))
         if rest.ndim != 2 or rest.shape[1] != 3:
@@ -250,6 +254,26 @@ class ExactLabeler(MeshByMesh):
         self._rest_centroids = np.ascontiguousarray(tri.mean(1))
         a_rows = np.repeat(np.arange(n_faces), np.diff(self._near_ptr))
         self._near_shared = (self.faces[a_rows, :, None] == self.faces[self._near_b, None, :]).any((1, 2))
+        self.far_clusters = int(far_clusters)
+        if not 0 <= self.far_clusters <= 8:
+            raise ValueError(f"far_clusters={far_clusters!r} must be in [0, 8] (0: no clusters)")
+        if self.far_clusters:
+            self._make_clusters(cell_factor)
+
+    def _make_clusters(self, cell_factor: float) -> None:
+        """The far pass's clusters (:mod:`~neuralcol.collision.kernels.clusters`): groups of ``far_clusters``
+        triangles close at rest, their rest boxes, and as blocks the far triangle pairs of the cluster pairs whose
+        rest boxes overlap (a cluster with itself included)."""
+        order, ptr = rest_clusters(self._rest_centroids, self.far_clusters)
+        n_clusters = len(ptr) - 1
+        rest_lo, rest_hi = cluster_boxes(*triangle_aabbs(self.rest, self.faces, 0.0), order, ptr)
+        cell = cell_factor * float((rest_hi - rest_lo).max(1).mean())  # of the grid over the cluster boxes
+        close = grid_pairs(rest_lo, rest_hi, cell)
+        pairs = np.concatenate([np.repeat(np.arange(n_clusters, dtype=np.int64), 2).reshape(-1, 2), close])
+        pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+        blocks, masks = static_blocks(self.faces, order, ptr, pairs, self._near_ptr, self._near_b)
+        n_bits = int(sum(bin(int(m) & 0xFFFFFFFFFFFFFFFF).count("1") for m in masks))
+        self._clusters = (order, ptr, rest_lo, rest_hi, blocks, masks, n_bits, cell)
 
     # ------------------------------------------------------------------ configuration
     def set_partition(self, partition) -> None:
@@ -359,21 +383,28 @@ class ExactLabeler(MeshByMesh):
         return state
 
     def _far_pass(self, v, lo0, hi0, lo_cap, hi_cap, axes, clear, floor, rec_key, rec_int, n_rec):
-        """Far pairs (:func:`~neuralcol.collision.kernels.pruned_pass.far_pass`), one grid over boxes grown by
-        ``(r + margin) / 2`` with ``r`` the largest current ``min(clear_i, cap)``: it holds every far pair with
-        overlapping boxes (they may be counted) and every far pair whose per-axis box gaps are all <= r + margin,
-        so a far pair it misses has distance > r and cannot lower any clearance (``margin`` = 1e-9 cap covers
-        the round-off of the grown boxes and of the distance, ~1e-16 of the coordinates). Triangles of parts
-        whose clearance is already 0 start no clearance pairs, and pairs whose rest centroids are closer than
-        cap are near pairs (their rest distance is below cap), not far ones."""
+        """Far pairs: those whose boxes grown by ``(r + margin) / 2`` overlap, with ``r`` the largest current
+        ``min(clear_i, cap)``, found over the rest mesh's clusters
+        (:func:`~neuralcol.collision.kernels.pruned_pass.far_pass_clusters`) or, with ``far_clusters=0``, with one
+        grid over every triangle (:func:`~neuralcol.collision.kernels.pruned_pass.far_pass`; the same far pairs,
+        the same labels bit for bit). They hold every far pair with overlapping boxes (they may be counted) and
+        every far pair whose per-axis box gaps are all <= r + margin, so a far pair they miss has distance > r and
+        cannot lower any clearance (``margin`` = 1e-9 cap covers the round-off of the grown boxes and of the
+        distance, ~1e-16 of the coordinates). Triangles of parts whose clearance is already 0 start no clearance
+        pairs, and pairs whose rest centroids are closer than cap are near pairs (their rest distance is below
+        cap), not far ones."""
         thr = np.minimum(clear, self.cap)
         r = max(float(thr.max()), 0.0)
         margin = 1e-9 * self.cap
         near2 = (self.cap - margin) ** 2
         active = (thr > 0.0)[self._tri_part].any(1)
         lo, hi = triangle_aabbs(v, self.faces, 0.5 * (r + margin))
+        if self.far_clusters:
+            return far_pass_clusters(v, self.faces, lo, hi, *self._clusters, lo0, hi0, lo_cap, hi_cap, active,
+                                     self._rest_centroids, near2, self._near_ptr, self._near_b, self._near_rest, *axes,
+                                     self.ell, self.tau, self.cap, clear, floor, self.partition, self.adj_ptr,
+                                     self.adj_idx, self.adj_eid, self.orient, rec_key, rec_int, n_rec)
         return far_pass(v, self.faces, lo, hi, max(self.cell, r + margin), lo0, hi0, lo_cap, hi_cap, active,
                         self._rest_centroids, near2, self._near_ptr, self._near_b, self._near_rest, *axes, self.ell,
-                        self.tau,
-                        self.cap, clear, floor, self.partition, self.adj_ptr, self.adj_idx, self.adj_eid, self.orient,
-                        rec_key, rec_int, n_rec)
+                        self.tau, self.cap, clear, floor, self.partition, self.adj_ptr, self.adj_idx, self.adj_eid,
+                        self.orient, rec_key, rec_int, n_rec)

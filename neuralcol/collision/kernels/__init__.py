@@ -7,7 +7,8 @@ module that defines it):
 * :mod:`~neuralcol.collision.kernels.distance`: triangle distances, box gaps, corner (wedge) gaps;
 * :mod:`~neuralcol.collision.kernels.pair_terms`: the rest near table and the terms of one triangle pair;
 * :mod:`~neuralcol.collision.kernels.label_pass`: the verdict, the reference pass over every pair and PD_i;
-* :mod:`~neuralcol.collision.kernels.pruned_pass`: the pruned near and far passes (the default path).
+* :mod:`~neuralcol.collision.kernels.pruned_pass`: the pruned near and far passes (the default path);
+* :mod:`~neuralcol.collision.kernels.clusters`: the rest mesh's triangle clusters that find the far pass's pairs.
 
 Every function is pure: arrays in, arrays or scalars out. Triangles are given as vertex arrays
 ``verts (V, 3) float64`` plus ``faces (F, 3) int64``. See :mod:`neuralcol.collision.labeler` for how they

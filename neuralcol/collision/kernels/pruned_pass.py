@@ -8,6 +8,7 @@ import numpy as np
 from numba import njit
 
 from neuralcol.collision.kernels.broadphase import boxes_overlap, shared_vertex_count, sorted_cells
+from neuralcol.collision.kernels.clusters import cluster_candidates
 from neuralcol.collision.kernels.depth import axes_gap
 from neuralcol.collision.kernels.distance import cone_gap, corner_gap
 from neuralcol.collision.kernels.pair_terms import count_pair, lower_clearance, near_index, pair_terms, part_min
@@ -129,6 +130,81 @@ def _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi):
 
 
 @njit(cache=True)
+def far_pairs(verts, faces, cand, n_cand, lo0, hi0, lo_cap, hi_cap, tri_thr, pts, skip2, near_ptr, near_b, near_rest,
+              axes, inv, ax_lo, ax_hi, scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key,
+              rec_int, n_rec):
+    """The far pass's treatment of the candidate pairs ``cand[:n_cand]`` (a < b, boxes grown as the broadphase grew
+    them overlap), one after the other: a pair is skipped if it is adjacent or near (or, with disjoint boxes ``lo0``/
+    ``hi0``, when neither triangle has a clearance to lower (``tri_thr``, :func:`far_thresholds`) or the rest
+    centroids ``pts`` are closer than ``sqrt(skip2)``), evaluated in full if its boxes ``lo0``/``hi0`` overlap (it
+    may be counted), else evaluated for its clearance term unless a bound rules the term out. Lowers ``clear`` and
+    raises ``floor`` in place.
+
+    The labels do not depend on the order of the pairs: a skipped term is >= the clearance it would have to beat
+    (``BOUND_SHRINK``), clearances are minima, floors maxima, the counted pairs do not depend on the clearances,
+    and :func:`~neuralcol.collision.kernels.label_pass.finish_label` sorts the crossing records.
+
+    Returns:
+        n_pairs (counted), rec_key, rec_int, n_rec.
+    """
+    n_pairs = 0
+    for k in range(n_cand):
+        a = cand[k, 0]
+        b = cand[k, 1]
+        if boxes_overlap(lo0, hi0, a, b):
+            if shared_vertex_count(faces, a, b) > 0 or near_index(near_ptr, near_b, a, b) >= 0:
+                continue  # adjacent or near: not a far pair
+            g = _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi)
+            if g > tau and g * BOUND_SHRINK >= part_min(clear, part, faces, a, b, cap):
+                continue  # not counted (depth <= -g), and its distance >= g cannot lower a clearance
+            evaluated, depth, c = pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear, part)
+            if evaluated:
+                lower_clearance(clear, part, faces, a, b, c)
+                if depth > tau:
+                    n_pairs += 1
+                    rec_key, rec_int, n_rec = count_pair(verts, faces, a, b, depth, tau, part, floor, adj_ptr, adj_idx,
+                                                         adj_eid, orient, rec_key, rec_int, n_rec)
+            continue
+        t = max(tri_thr[a], tri_thr[b])  # >= the pair's current threshold (clearances only fall)
+        if t <= 0.0 or not boxes_overlap(lo_cap, hi_cap, a, b):
+            continue
+        g2 = 0.0  # Euclidean gap of the boxes, as pair_terms computes it: a lower bound of the distance
+        for d in range(3):
+            gap = max(lo0[b, d] - hi0[a, d], lo0[a, d] - hi0[b, d], 0.0)
+            g2 += gap * gap
+        lb = np.sqrt(g2)
+        if lb > 0.0 and lb * BOUND_SHRINK >= t:
+            continue
+        dd = 0.0
+        for d in range(3):
+            dd += (pts[a, d] - pts[b, d]) ** 2
+        if dd < skip2:
+            continue  # closer than cap at rest: near
+        if near_index(near_ptr, near_b, a, b) >= 0 or shared_vertex_count(faces, a, b) > 0:
+            continue
+        thr = part_min(clear, part, faces, a, b, cap)
+        if thr <= 0.0 or _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi) * BOUND_SHRINK >= thr:
+            continue  # its distance >= the gap cannot lower a clearance
+        evaluated, depth, c = pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear, part)
+        if evaluated:
+            lower_clearance(clear, part, faces, a, b, c)
+    return n_pairs, rec_key, rec_int, n_rec
+
+
+@njit(cache=True)
+def far_thresholds(faces, active, clear, part, cap):
+    """Per triangle, the largest clearance (capped) among its vertices' parts when the far pass starts; 0 for a
+    triangle that is not ``active``."""
+    n = faces.shape[0]
+    tri_thr = np.zeros(n)
+    for f in range(n):
+        if active[f]:
+            for i in range(3):
+                tri_thr[f] = max(tri_thr[f], min(clear[part[faces[f, i]]], cap))
+    return tri_thr
+
+
+@njit(cache=True)
 def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, skip2, near_ptr, near_b, near_rest,
              axes, inv, ax_lo, ax_hi, scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key,
              rec_int, n_rec):
@@ -137,14 +213,32 @@ def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, 
     far pairs with overlapping boxes are evaluated in full (they may be counted), far pairs with disjoint
     boxes within cap lower the clearance (their term is the distance; only when a triangle is ``active``,
     i.e. some part of its vertices still has a clearance > 0, and the rest centroids ``pts`` are at least
-    ``sqrt(skip2)`` apart: closer pairs are near). Each pair is visited once (the cell of the lower corner
-    of the two grown boxes' intersection) and evaluated as it is found.
+    ``sqrt(skip2)`` apart: closer pairs are near). Each pair whose grown boxes overlap is found once (the cell of
+    the lower corner of the two boxes' intersection) and treated by :func:`far_pairs`. The path of
+    ``ExactLabeler(far_clusters=0)``; :func:`far_pass_clusters` finds the same pairs without visiting the adjacent
+    and near ones.
 
     Returns:
         n_pairs (counted), rec_key, rec_int, n_rec.
     """
-    n = lo.shape[0]
-    cell_keys, cell_start, ids, ilo, dims = sorted_cells(lo, hi, cell)
+    grid = sorted_cells(lo, hi, cell)
+    size = max(1024, 8 * lo.shape[0])
+    while True:  # an output array that is not reallocated inside the sweep (which would slow the sweep down)
+        cand = np.empty((size, 2), dtype=np.int64)
+        n_cand = _grid_fill(cand, lo, hi, *grid)
+        if n_cand >= 0:
+            break
+        size *= 4
+    return far_pairs(verts, faces, cand, n_cand, lo0, hi0, lo_cap, hi_cap, far_thresholds(faces, active, clear, part,
+                     cap), pts, skip2, near_ptr, near_b, near_rest, axes, inv, ax_lo, ax_hi, scale, tau, cap, clear,
+                     floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)
+
+
+@njit(cache=True)
+def _grid_fill(cand, lo, hi, cell_keys, cell_start, ids, ilo, dims):
+    """The pairs (a < b) whose boxes ``lo``/``hi`` overlap, from the grid of
+    :func:`~neuralcol.collision.kernels.broadphase.sorted_cells`, into ``cand``: their number, or -1 if ``cand`` is
+    too short."""
     total = ids.shape[0]
     # the entries' boxes, contiguous per coordinate in entry order (each cell's entries by ascending lower x)
     xl = np.empty(total)
@@ -161,13 +255,7 @@ def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, 
         yh[e] = hi[f, 1]
         zl[e] = lo[f, 2]
         zh[e] = hi[f, 2]
-    # per triangle, the largest clearance (capped) among its vertices' parts when the pass starts
-    tri_thr = np.zeros(n)
-    for f in range(n):
-        if active[f]:
-            for i in range(3):
-                tri_thr[f] = max(tri_thr[f], min(clear[part[faces[f, i]]], cap))
-    n_pairs = 0
+    m = 0
     for ci in range(cell_keys.shape[0]):
         start = cell_start[ci]
         end = cell_start[ci + 1]
@@ -193,45 +281,27 @@ def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, 
                 if (max(ilo[a0, 0], ilo[b0, 0]) != cx or max(ilo[a0, 1], ilo[b0, 1]) != cy
                         or max(ilo[a0, 2], ilo[b0, 2]) != cz):
                     continue
-                a = min(a0, b0)
-                b = max(a0, b0)
-                if boxes_overlap(lo0, hi0, a, b):
-                    if shared_vertex_count(faces, a, b) > 0 or near_index(near_ptr, near_b, a, b) >= 0:
-                        continue  # adjacent or near: not a far pair
-                    g = _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi)
-                    if g > tau and g * BOUND_SHRINK >= part_min(clear, part, faces, a, b, cap):
-                        continue  # not counted (depth <= -g), and its distance >= g cannot lower a clearance
-                    evaluated, depth, c = pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear,
-                                                     part)
-                    if evaluated:
-                        lower_clearance(clear, part, faces, a, b, c)
-                        if depth > tau:
-                            n_pairs += 1
-                            rec_key, rec_int, n_rec = count_pair(verts, faces, a, b, depth, tau, part, floor,
-                                                                 adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int,
-                                                                 n_rec)
-                    continue
-                t = max(tri_thr[a], tri_thr[b])  # >= the pair's current threshold (clearances only fall)
-                if t <= 0.0 or not boxes_overlap(lo_cap, hi_cap, a, b):
-                    continue
-                g2 = 0.0  # Euclidean gap of the boxes, as pair_terms computes it: a lower bound of the distance
-                for d in range(3):
-                    gap = max(lo0[b, d] - hi0[a, d], lo0[a, d] - hi0[b, d], 0.0)
-                    g2 += gap * gap
-                lb = np.sqrt(g2)
-                if lb > 0.0 and lb * BOUND_SHRINK >= t:
-                    continue
-                dd = 0.0
-                for d in range(3):
-                    dd += (pts[a, d] - pts[b, d]) ** 2
-                if dd < skip2:
-                    continue  # closer than cap at rest: near
-                if near_index(near_ptr, near_b, a, b) >= 0 or shared_vertex_count(faces, a, b) > 0:
-                    continue
-                thr = part_min(clear, part, faces, a, b, cap)
-                if thr <= 0.0 or _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi) * BOUND_SHRINK >= thr:
-                    continue  # its distance >= the gap cannot lower a clearance
-                evaluated, depth, c = pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear, part)
-                if evaluated:
-                    lower_clearance(clear, part, faces, a, b, c)
-    return n_pairs, rec_key, rec_int, n_rec
+                if m == cand.shape[0]:
+                    return -1
+                cand[m, 0] = min(a0, b0)
+                cand[m, 1] = max(a0, b0)
+                m += 1
+    return m
+
+
+@njit(cache=True)
+def far_pass_clusters(verts, faces, lo, hi, order, cl_ptr, rest_lo, rest_hi, blocks, masks, n_bits, cluster_cell, lo0,
+                      hi0, lo_cap, hi_cap, active, pts, skip2, near_ptr, near_b, near_rest, axes, inv, ax_lo, ax_hi,
+                      scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec):
+    """:func:`far_pass` with the rest mesh's clusters instead of a grid over every triangle: the candidates of
+    :func:`~neuralcol.collision.kernels.clusters.cluster_candidates` (the pairs of the grid minus adjacent and near
+    ones, which :func:`far_pairs` skips anyway), treated by :func:`far_pairs` in another order (the labels do not
+    depend on it). The path of ``ExactLabeler(far_clusters > 0)``, the default.
+
+    Returns:
+        n_pairs (counted), rec_key, rec_int, n_rec.
+    """
+    cand = cluster_candidates(lo, hi, order, cl_ptr, rest_lo, rest_hi, blocks, masks, n_bits, cluster_cell)
+    return far_pairs(verts, faces, cand, cand.shape[0], lo0, hi0, lo_cap, hi_cap, far_thresholds(faces, active, clear,
+                     part, cap), pts, skip2, near_ptr, near_b, near_rest, axes, inv, ax_lo, ax_hi, scale, tau, cap,
+                     clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)
