@@ -57,8 +57,9 @@ def measure(ctx: BenchContext) -> dict:
                                                                           pd_floor=floor)))
     identical = bool(np.array_equal(a.collides, b.collides) and np.array_equal(sub_a, b.subset) and same_targets)
     ctx.notes["training_labels"] = (
-        f"{n} uniform codes of {where(run_dir)} (SCAPE), before issue 42 (decoded here, full labels) against labels "
-        f"for training (clearances capped at {-floor:g} caps, decoded in the workers), one 2-worker LabelPool, "
+        f"{n} uniform codes of {where(run_dir)} (SCAPE), issue 41's path (decoded here, full labels; today's "
+        f"labeler) against labels for training (clearances capped at {-floor:g} caps, decoded in the workers), "
+        f"one 2-worker LabelPool, "
         f"interleaved; verdicts, subsets and clipped targets identical: {identical}; colliding share "
         f"{float(np.mean(a.collides)):.3f}")
     if not identical:
