@@ -193,7 +193,8 @@ class FCLLabeler(MeshByMesh):
 
     def __init__(self, faces, rest_vertices, partition=None, touch_tol: float = 1e-6,
                  clearance_cap: float = 0.01, boundary_eps: float = 1e-4, cell_factor: float = 2.0,
-                 patch_size: int = 16, method: str = "broadphase"):
+                 patch_size: int = 16, method: str = "broadphase", far_clusters: int = 6):
+        del far_clusters  # ExactLabeler's far-pass setting (labeling=fcl shares conf/labeling/cpu.yaml); unused here
         _fcl()  # fail early, with the import error, when python-fcl is missing
         self.faces = np.ascontiguousarray(np.asarray(faces, dtype=np.int64))
         rest = np.ascontiguousarray(np.asarray(rest_vertices, dtype=np.float64))

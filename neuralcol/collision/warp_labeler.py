@@ -59,8 +59,9 @@ class WarpLabeler:
         partition: (V,) int part of each vertex, or None for one part.
         device: Warp device (``"cuda:0"``, ``"cpu"``, ...); None: ``cuda:0`` if available, else ``cpu``.
         touch_tol, clearance_cap, boundary_eps: as for ExactLabeler.
-        cell_factor, prune: accepted for ExactLabeler's settings; the device path does not use them (its
-            broadphase is a BVH, and it evaluates every pair within cap, which gives the pruned labels).
+        cell_factor, prune, far_clusters: accepted for ExactLabeler's settings (far_clusters goes to the host
+            reference); the device path does not use them (its broadphase is a BVH, and it evaluates every pair
+            within cap, which gives the pruned labels).
         max_batch: poses per kernel launch; larger batches are labelled in slices of this size. It is lowered so
             that a launch holds at most 2**22 triangle-poses (about 200 bytes each on the device: 0.8 GB).
 
@@ -77,10 +78,11 @@ class WarpLabeler:
 
     def __init__(self, faces, rest_vertices, partition=None, device: str | None = None, touch_tol: float = 1e-6,
                  clearance_cap: float = 0.01, boundary_eps: float = 2e-3, cell_factor: float = 2.0,
-                 prune: bool = True, max_batch: int = 1024):
+                 prune: bool = True, max_batch: int = 1024, far_clusters: int = 6):
         del prune  # the device evaluates every pair within cap (the reference); the labels are the same
         self._ref = ExactLabeler(faces, rest_vertices, partition=partition, touch_tol=touch_tol,
-                                 clearance_cap=clearance_cap, boundary_eps=boundary_eps, cell_factor=cell_factor)
+                                 clearance_cap=clearance_cap, boundary_eps=boundary_eps, cell_factor=cell_factor,
+                                 far_clusters=far_clusters)
         ref = self._ref
         self.faces, self.rest, self.n_vertices = ref.faces, ref.rest, ref.n_vertices
         self.edges, self.ell, self.diag = ref.edges, ref.ell, ref.diag
