@@ -1,16 +1,33 @@
-import numpy as np, neuralcol, sys
-run = neuralcol.pretrained("scape", workers=0); lab = run.labeler
-d = np.load(sys.argv[1])
-idx = np.flatnonzero(d["pd"] > 0)
-rows = []
-for k in idx:
-    v = d["vertices"][k].astype(np.float64)
-    p = lab.penetrations(v, 0.3, seed_vectors=False)
-    q = lab.penetrations(v, 1.0, seed_vectors=True)
-    reg = int((np.abs(p.vector).sum(1) > 0).sum())
-    seeds_only = int(((np.abs(q.vector).sum(1) > 0) & (np.abs(p.vector).sum(1) == 0)).sum())
-    rows.append((d["kind"][k], p.n_pairs, reg, seeds_only, d["pd"][k] / lab.diag))
-r = np.array(rows)
-print("n", len(r), "with enclosed regions", (r[:,2] > 0).sum(), "local only", (r[:,2] == 0).sum())
-print("median PD %% diag: regions %.3f, local only %.3f" % (100*np.median(r[r[:,2]>0,4]), 100*np.median(r[r[:,2]==0,4])))
-for kd in np.unique(r[:,0]): m = r[:,0]==kd; print("kind", int(kd), "n", m.sum(), "regions", (r[m,2]>0).sum())
+"""Issue 43 probe: how many of a run's colliding realistic meshes have enclosed penetrating regions (deep: a part
+inside another part's volume) and how many only local folds (intersection curves that enclose nothing).
+
+    PYTHONPATH=. python research/issue43/penetration_kinds.py RUN_DIR
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+import neuralcol
+from research.issue43.untangle_probe import realistic_set
+
+
+def main() -> None:
+    run = neuralcol.load_run(sys.argv[1], workers=0)
+    lab = run.labeler
+    data = realistic_set(run)
+    rows = []
+    for k in np.flatnonzero(data["pd"] > 0):
+        pen = lab.penetrations(data["vertices"][k].astype(np.float64), 0.3, seed_vectors=False)
+        rows.append((int(data["kind"][k]), bool(np.abs(pen.vector).sum() > 0), data["pd"][k] / lab.diag))
+    kind, deep, pd = (np.array(c) for c in zip(*rows))
+    print(f"colliding {len(rows)}: with an enclosed region {deep.sum()}, local folds only {(~deep).sum()}; median PD "
+          f"{100 * np.median(pd[deep]):.3f} % / {100 * np.median(pd[~deep]):.3f} % of the diagonal")
+    for k in np.unique(kind):
+        print(f"  kind {k}: {np.sum(kind == k)} meshes, {np.sum(deep[kind == k])} with an enclosed region")
+
+
+if __name__ == "__main__":
+    main()
