@@ -61,8 +61,25 @@ from neuralcol.collision.kernels.depth import pair_depths, triangle_axes
 from neuralcol.collision.kernels.distance import corner_cones
 from neuralcol.collision.kernels.label_pass import finish_label, label_mesh, verdict_kernel
 from neuralcol.collision.kernels.pair_terms import near_table
+from neuralcol.collision.kernels.penetration import crossing_seeds, penetration
 from neuralcol.collision.kernels.pruned_pass import far_pass, far_pass_clusters, near_pass
 from neuralcol.geometry.topology import edge_topology, vertex_neighbors
+
+
+class Penetrations(NamedTuple):
+    """The penetrating vertices of one mesh (:meth:`ExactLabeler.penetrations`).
+
+    Attributes:
+        n_pairs: counted intersecting triangle pairs (0: the mesh is free).
+        depth: (V,) each vertex's penetration depth (0 where it does not penetrate; the labeler's PD is the largest).
+        vector: (V, 3) from each penetrating vertex to the nearest point of its opposing surface (zeros elsewhere;
+            on a mesh with boundary or in a local fold: from the nearer end of a crossing edge to the triangle it
+            pierces, given to that end).
+    """
+
+    n_pairs: int
+    depth: np.ndarray
+    vector: np.ndarray
 
 
 class Label(NamedTuple):
@@ -325,6 +342,29 @@ class ExactLabeler(MeshByMesh):
         if not self.prune:
             n_pairs, out, depth_v = self._label_reference(v)
             return n_pairs, (out if clearance_limit == np.inf else np.maximum(out, -clearance_limit)), depth_v
+        n_pairs, rec_key, rec_int, n_rec, clear, floor = self._passes(v, clearance_limit)
+        out, depth_v = finish_label(v, self.faces, rec_key, rec_int, n_rec, len(self.edges), floor, clear,
+                                    self.partition, self.n_parts, self.cap, self.adj_ptr, self.adj_idx, self.adj_eid,
+                                    self.closed)
+        return n_pairs, out, depth_v
+
+    def penetrations(self, vertices, max_region: float = 1.0, seed_vectors: bool = True) -> Penetrations:
+        """The penetrating vertices of a mesh (V, 3) and how far each must move (module docstring: "Penetrating
+        vertices", "Depth"): :class:`Penetrations`. What the untangle repair moves
+        (:mod:`neuralcol.handler.untangle`). ``max_region``: a flood-filled region holding more than this share
+        of the vertices is taken for the outside of an intersection curve that does not close, and keeps its seeds
+        only (1.0: as the labeler's depth). ``seed_vectors`` False: vectors of the enclosed regions only (zeros at
+        the seeds of local folds and of meshes with boundary)."""
+        v = self._check(vertices)
+        n_pairs, rec_key, rec_int, n_rec, _, _ = self._passes(v, np.inf)
+        seeds, blocked = crossing_seeds(rec_key, rec_int, n_rec, len(self.edges))
+        depth, vec = penetration(v, self.faces, seeds, self.adj_ptr, self.adj_idx, self.adj_eid, blocked,
+                                 self.closed, 2 if seed_vectors else 1, int(max_region * len(v)))
+        return Penetrations(int(n_pairs), depth, vec)
+
+    def _passes(self, v, clearance_limit: float):
+        """The pruned near and far passes: counted pairs, crossing records, per-part clearances and pair-depth
+        floors."""
         f = self.faces
         lo0, hi0 = triangle_aabbs(v, f, 0.0)
         lo_cap, hi_cap = triangle_aabbs(v, f, 0.5 * self.cap)
@@ -345,10 +385,7 @@ class ExactLabeler(MeshByMesh):
         #    the pairs closer than the clearance they would have to beat
         n_far, rec_key, rec_int, n_rec = self._far_pass(v, lo0, hi0, lo_cap, hi_cap, axes, clear, floor, rec_key,
                                                         rec_int, n_rec)
-        n_pairs = n_near + n_far
-        out, depth_v = finish_label(v, f, rec_key, rec_int, n_rec, len(self.edges), floor, clear, self.partition,
-                                    self.n_parts, self.cap, self.adj_ptr, self.adj_idx, self.adj_eid, self.closed)
-        return n_pairs, out, depth_v
+        return n_near + n_far, rec_key, rec_int, n_rec, clear, floor
 
     def _label_reference(self, v):
         """Every non-adjacent pair whose boxes are within cap (``prune=False``)."""

@@ -9,9 +9,9 @@ from numba import njit
 from neuralcol.collision.kernels.vec import corners, point, vadd, vcross, vdot, vscale, vsub
 
 
-@njit(cache=True)
-def point_triangle_distance(p, a, b, c):
-    """Euclidean distance from point p to triangle (a, b, c) (Ericson, Real-Time Collision Detection 5.1.5)."""
+@njit(cache=True, inline="always")
+def closest_point_triangle(p, a, b, c):
+    """The point of triangle (a, b, c) closest to point p (Ericson, Real-Time Collision Detection 5.1.5)."""
     ab = vsub(b, a)
     ac = vsub(c, a)
     ap = vsub(p, a)
@@ -46,7 +46,13 @@ def point_triangle_distance(p, a, b, c):
                         else:
                             denom = 1.0 / (va + vb + vc)
                             x = vadd(a, vadd(vscale(ab, vb * denom), vscale(ac, vc * denom)))
-    d = vsub(p, x)
+    return x
+
+
+@njit(cache=True)
+def point_triangle_distance(p, a, b, c):
+    """Euclidean distance from point p to triangle (a, b, c) (:func:`closest_point_triangle`)."""
+    d = vsub(p, closest_point_triangle(p, a, b, c))
     return np.sqrt(vdot(d, d))
 
 

@@ -9,9 +9,9 @@ from numba import njit
 
 from neuralcol.collision.kernels.broadphase import grid_pairs, shared_vertex_count
 from neuralcol.collision.kernels.depth import opposite_edges_cross, plane_separated, triangle_pair_depth
-from neuralcol.collision.kernels.distance import point_triangle_distance
 from neuralcol.collision.kernels.pair_terms import add_crossings, lower_clearance, near_index, pair_terms
-from neuralcol.collision.kernels.vec import corners, point
+from neuralcol.collision.kernels.penetration import crossing_seeds, penetration
+from neuralcol.collision.kernels.vec import corners
 
 
 @njit(cache=True)
@@ -68,171 +68,16 @@ def pair_pass(verts, faces, pairs, scale, tau, cap, part, clear, floor, adj_ptr,
 
 
 @njit(cache=True)
-def _seed_depth(verts, faces, seeds, k):
-    """Depth of a crossing edge: distance of its nearer endpoint to the pierced triangle."""
-    t = seeds[k, 2]
-    ta, tb, tc = corners(verts, faces, t)
-    return min(point_triangle_distance(point(verts, seeds[k, 0]), ta, tb, tc),
-               point_triangle_distance(point(verts, seeds[k, 1]), ta, tb, tc))
-
-
-@njit(cache=True)
-def _penetration_depths(verts, faces, seeds, adj_ptr, adj_idx, adj_eid, blocked, closed):
-    """Depth of every penetrating vertex (0 elsewhere), (V,). See the labeler's module docstring."""
-    n_vert = verts.shape[0]
-    depth = np.zeros(n_vert)
-    n_seeds = seeds.shape[0]
-    region = np.full(n_vert, -1, dtype=np.int64)
-    n_regions = 0
-    if closed:  # flood fill the penetrating regions, bounded by crossing edges
-        queue = np.empty(n_vert, dtype=np.int64)
-        for k in range(n_seeds):
-            s = seeds[k, 0]
-            if region[s] >= 0:
-                continue
-            head = 0
-            tail = 0
-            queue[tail] = s
-            tail += 1
-            region[s] = n_regions
-            while head < tail:
-                v = queue[head]
-                head += 1
-                for j in range(adj_ptr[v], adj_ptr[v + 1]):
-                    w = adj_idx[j]
-                    if region[w] >= 0 or blocked[adj_eid[j]]:
-                        continue
-                    region[w] = n_regions
-                    queue[tail] = w
-                    tail += 1
-            n_regions += 1
-    # a region that holds both ends of one of its crossing edges is not enclosed by the intersection
-    # curves (a local fold): it keeps its seeds only
-    valid = np.ones(n_regions, dtype=np.bool_)
-    for k in range(n_seeds):
-        r = region[seeds[k, 0]]
-        if r >= 0 and region[seeds[k, 1]] == r:
-            valid[r] = False
-    for k in range(n_seeds):
-        r = region[seeds[k, 0]]
-        if r < 0 or not valid[r]:
-            v = seeds[k, 0]
-            depth[v] = max(depth[v], _seed_depth(verts, faces, seeds, k))
-    if n_regions == 0:
-        return depth
-    # opposing triangles of each valid region: the triangles it pierces + triangles of all other regions
-    pierced = np.zeros((n_regions, faces.shape[0]), dtype=np.bool_)
-    for k in range(n_seeds):
-        pierced[region[seeds[k, 0]], seeds[k, 2]] = True
-    opp = np.empty(faces.shape[0], dtype=np.int64)
-    for r in range(n_regions):
-        if not valid[r]:
-            continue
-        n_opp = 0
-        for f in range(faces.shape[0]):
-            own = False
-            other = False
-            for i in range(3):
-                rf = region[faces[f, i]]
-                if rf == r:
-                    own = True
-                elif rf >= 0:
-                    other = True
-            if not own and (pierced[r, f] or other):
-                opp[n_opp] = f
-                n_opp += 1
-        if n_opp == 0:
-            continue
-        # centroid and radius of each opposing triangle: |p - c| - r is a lower bound of the distance
-        cen = np.empty((n_opp, 3))
-        rad = np.empty(n_opp)
-        for k in range(n_opp):
-            f = opp[k]
-            for d in range(3):
-                cen[k, d] = (verts[faces[f, 0], d] + verts[faces[f, 1], d] + verts[faces[f, 2], d]) / 3.0
-            r2 = 0.0
-            for i in range(3):
-                e = 0.0
-                for d in range(3):
-                    e += (verts[faces[f, i], d] - cen[k, d]) ** 2
-                r2 = max(r2, e)
-            rad[k] = np.sqrt(r2)
-        lb = np.empty(n_opp)
-        for v in range(n_vert):
-            if region[v] != r:
-                continue
-            p = point(verts, v)
-            k_best = 0
-            for k in range(n_opp):
-                e = 0.0
-                for d in range(3):
-                    e += (p[d] - cen[k, d]) ** 2
-                lb[k] = np.sqrt(e) - rad[k]
-                if lb[k] < lb[k_best]:
-                    k_best = k
-            f = opp[k_best]
-            t0, t1, t2 = corners(verts, faces, f)
-            best = point_triangle_distance(p, t0, t1, t2)
-            for k in range(n_opp):
-                if lb[k] >= best:
-                    continue
-                f = opp[k]
-                t0, t1, t2 = corners(verts, faces, f)
-                d = point_triangle_distance(p, t0, t1, t2)
-                if d < best:
-                    best = d
-            depth[v] = best
-    return depth
-
-
-@njit(cache=True)
 def finish_label(verts, faces, rec_key, rec_int, n_rec, n_edges, floor, clear, part, n_parts, cap,
                  adj_ptr, adj_idx, adj_eid, closed):
     """Per-part PD_i (K,) and per-vertex penetration depth (V,) from the crossing records and the per-part
     clearance / pair-depth floor of :func:`pair_pass`."""
     n_vert = verts.shape[0]
-    blocked = np.zeros(n_edges, dtype=np.bool_)
-    # An edge separates inside from outside only if it crosses the surface an odd number of times (an edge
-    # through a corner enters and leaves). Crossings at the same point (through a shared edge or vertex of the
-    # other surface) count once if they agree on the side, and not at all if they disagree (a graze).
-    order = np.argsort(rec_key[:n_rec])
-    seeds = np.empty((max(n_rec, 1), 3), dtype=np.int64)
-    n_seeds = 0
-    keep = np.zeros(n_rec, dtype=np.bool_)
-    k = 0
-    while k < n_rec:
-        e = rec_int[order[k], 0]
-        end = k
-        while end < n_rec and rec_int[order[end], 0] == e:
-            end += 1
-        n_cross = 0
-        c0 = k
-        while c0 < end:  # clusters of equal crossing parameter
-            c1 = c0 + 1
-            agree = True
-            while c1 < end and rec_key[order[c1]] - rec_key[order[c0]] <= 1e-12:
-                if rec_int[order[c1], 1] != rec_int[order[c0], 1]:
-                    agree = False
-                c1 += 1
-            if agree:
-                n_cross += 1
-                for j in range(c0, c1):
-                    keep[order[j]] = True
-            c0 = c1
-        if n_cross % 2 == 1:
-            blocked[e] = True
-            for j in range(k, end):
-                r = order[j]
-                if keep[r] and rec_int[r, 4] == 1:
-                    seeds[n_seeds, 0] = rec_int[r, 1]
-                    seeds[n_seeds, 1] = rec_int[r, 2]
-                    seeds[n_seeds, 2] = rec_int[r, 3]
-                    n_seeds += 1
-        k = end
+    seeds, blocked = crossing_seeds(rec_key, rec_int, n_rec, n_edges)
     pos = floor.copy()
     depth_v = np.zeros(n_vert)
-    if n_seeds > 0:
-        depth_v = _penetration_depths(verts, faces, seeds[:n_seeds], adj_ptr, adj_idx, adj_eid, blocked, closed)
+    if seeds.shape[0] > 0:
+        depth_v, _ = penetration(verts, faces, seeds, adj_ptr, adj_idx, adj_eid, blocked, closed, 0, n_vert)
         for v in range(n_vert):
             if depth_v[v] > pos[part[v]]:
                 pos[part[v]] = depth_v[v]
