@@ -69,11 +69,11 @@ class FaultLabeler(ExactLabeler):
         return super().label(v)
 
 
-def two_spheres(offset: float) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit icospheres (subdivisions=1, 42 vertices each), the second shifted by ``offset`` along x."""
+def two_spheres(offset: float, subdivisions: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit icospheres (subdivisions=1: 42 vertices each), the second shifted by ``offset`` along x."""
     import trimesh
 
-    s = trimesh.creation.icosphere(subdivisions=1)
+    s = trimesh.creation.icosphere(subdivisions=subdivisions)
     v, f = np.asarray(s.vertices, np.float64), np.asarray(s.faces, np.int64)
     return np.concatenate([v, v + [offset, 0.0, 0.0]]), np.concatenate([f, f + len(v)])
 

@@ -12,11 +12,7 @@ from neuralcol.handler.untangle import SmoothField, UntangleSettings, contour_gr
 
 
 def _spheres(offset: float, subdivisions: int = 2):
-    import trimesh
-
-    s = trimesh.creation.icosphere(subdivisions=subdivisions)
-    v, f = np.asarray(s.vertices, np.float64), np.asarray(s.faces, np.int64)
-    return np.concatenate([v, v + [offset, 0.0, 0.0]]), np.concatenate([f, f + len(v)])
+    return two_spheres(offset, subdivisions)
 
 
 def test_penetration_vectors_of_two_overlapping_spheres():
