@@ -68,6 +68,34 @@ def test_untangle_separates_overlapping_spheres(offset):
     assert moved[far].max() < 0.5 * moved.max()
 
 
+def _bump_through_sheet(height: float) -> tuple[np.ndarray, np.ndarray]:
+    """Two open 12 x 12 grids: a flat sheet at z = 0 and, ``height`` above it, a sheet with a Gaussian bump 0.4
+    high (no enclosed region: only contour minimisation can untangle it)."""
+    n = 12
+    x, y = np.meshgrid(np.linspace(-1, 1, n), np.linspace(-1, 1, n), indexing="ij")
+    flat = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], 1)
+    quad = np.array([[i * n + j, i * n + j + n, i * n + j + 1] for i in range(n - 1) for j in range(n - 1)])
+    faces = np.concatenate([quad, np.stack([quad[:, 2], quad[:, 1], quad[:, 1] + 1], 1)])
+    bump = flat.copy()
+    bump[:, :2] *= 0.9
+    bump[:, 2] = height + 0.4 * np.exp(-3 * (flat[:, 0] ** 2 + flat[:, 1] ** 2))
+    return np.concatenate([flat, bump]), np.concatenate([faces, faces + n * n])
+
+
+def test_contour_step_adapts_on_open_sheets():
+    """A bump pushed 0.2 through a flat sheet (open surfaces): both the fixed and the adaptive contour step free it,
+    the adaptive one (x1.3 while the curves shrink) in fewer iterations."""
+    rest, faces = _bump_through_sheet(1.0)
+    lab = ExactLabeler(faces, rest)
+    v, _ = _bump_through_sheet(-0.2)
+    assert lab.label(v).collides and not lab.closed
+    fixed = untangle(v, lab, UntangleSettings(contour_grow=1.0, contour_shrink=1.0, max_iter=200))
+    adaptive = untangle(v, lab, UntangleSettings(max_iter=200))
+    for out in (fixed, adaptive):
+        assert out.resolved and not lab.label(out.vertices).collides
+    assert adaptive.iterations < fixed.iterations
+
+
 def test_untangle_frees_colliding_scape_interpolations(scape):
     """SCAPE poses pushed past their ends (t = 1.8): the untangled meshes are free by the exact label."""
     v = scape.vertices.numpy().astype(np.float64)
@@ -89,5 +117,7 @@ def test_untangle_frees_colliding_scape_interpolations(scape):
 def test_untangle_settings_refuse_bad_values():
     with pytest.raises(ValueError, match="untangle"):
         UntangleSettings(share=0.0)
+    with pytest.raises(ValueError, match="contour_min <= contour_step <= contour_max"):
+        UntangleSettings(contour_step=2.0)
     with pytest.raises(ValueError, match="vertices have shape"):
         untangle(np.zeros((3, 2)), None, UntangleSettings())

@@ -24,7 +24,11 @@ contour minimization", SIGGRAPH 2006): where no region is enclosed (local folds,
 counted pair's intersection segment (between its two edge/triangle crossing points) has a length; the gradient of
 their sum moves the surfaces so that the intersection curves shrink until they vanish, whatever their depth. Its
 step: the gradient scaled so that the largest move is ``contour_step`` mean edge lengths, spread by the same smooth
-field. Pairs whose crossings do not give two points (touching, coplanar) contribute nothing.
+field. Pairs whose crossings do not give two points (touching, coplanar) contribute nothing. The step adapts: x1.3
+while the total length falls, x0.8 when it rises; and regions shallower than ``min_push`` edge lengths are left to it
+(a push of a one-vertex region moved that vertex alone and left the curves around it untouched, step after step).
+Together, on SCAPE's colliding realistic meshes (seed-0 run), freed 67.5 -> 80 % of the first 40 (tuned there and on
+proc_cloth's first 60) and 72.5 -> 78.8 % of the next 80 (held out).
 
 Symbols: V vertices, F faces, P intersecting pairs.
 """
@@ -56,7 +60,12 @@ class UntangleSettings:
 
     share: float = 0.5  # region push: the fraction of the way to the opposing surface a penetrating vertex moves
     delta: float = 0.25  # region push: separation beyond it, in mean edge lengths
-    contour_step: float = 0.1  # contour minimisation: the largest move per step, in mean edge lengths
+    contour_step: float = 0.1  # contour minimisation: the first step's largest move, in mean edge lengths
+    contour_max: float = 1.0  # the step grows x contour_grow while the contour length falls, up to this
+    contour_min: float = 0.02  # and shrinks x contour_shrink when it rises, down to this
+    contour_grow: float = 1.3
+    contour_shrink: float = 0.8
+    min_push: float = 0.3  # region push only while an enclosed vertex lies deeper than this (mean edge lengths)
     hold: float = 10.0  # weight of a target against the smoothness
     stiffness: float = 1.0  # weight of the membrane term sum over edges |d_i - d_j|^2
     anchor: float = 0.05  # weight of |d|^2: what no target reaches stays put (falloff ~ sqrt(stiffness / anchor))
@@ -64,10 +73,13 @@ class UntangleSettings:
     max_iter: int = 80
 
     def __post_init__(self):
-        if not (0 < self.share <= 1 and self.delta >= 0 and self.contour_step > 0 and self.hold > 0
+        steps_ok = 0 < self.contour_min <= self.contour_step <= self.contour_max
+        if not (0 < self.share <= 1 and self.delta >= 0 and steps_ok and self.contour_grow >= 1
+                and 0 < self.contour_shrink <= 1 and self.min_push >= 0 and self.hold > 0
                 and self.stiffness >= 0 and self.anchor > 0 and 0 < self.max_region <= 1 and self.max_iter >= 0):
-            raise ValueError(f"handler.repair (untangle): need 0 < share <= 1, delta >= 0, contour_step > 0, hold > 0, "
-                             f"stiffness >= 0, anchor > 0, 0 < max_region <= 1, max_iter >= 0; got {self}")
+            raise ValueError(f"handler.repair (untangle): need 0 < share <= 1, delta >= 0, 0 < contour_min <= "
+                             f"contour_step <= contour_max, contour_grow >= 1, 0 < contour_shrink <= 1, min_push >= 0, "
+                             f"hold > 0, stiffness >= 0, anchor > 0, 0 < max_region <= 1, max_iter >= 0; got {self}")
 
 
 def edge_laplacian(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
@@ -154,6 +166,7 @@ def untangle(vertices: np.ndarray, labeler, settings: UntangleSettings, field: S
     if field is None:
         field = SmoothField(labeler.faces, len(v), settings.stiffness, settings.anchor)
     ell = float(labeler.ell)
+    step, last_length = settings.contour_step, np.inf
     seen = []
     for it in range(settings.max_iter + 1):
         pen = labeler.penetrations(v, settings.max_region, seed_vectors=False)
@@ -163,12 +176,18 @@ def untangle(vertices: np.ndarray, labeler, settings: UntangleSettings, field: S
         if it == settings.max_iter:
             break
         index, targets = push_targets(pen.vector, settings.share, settings.delta * ell)
-        if len(index) == 0:  # no enclosed region: shrink the intersection curves
-            grad, _ = contour_gradient(v, labeler.faces, labeler.intersecting_pairs(v))
+        deepest = float(np.linalg.norm(pen.vector[index], axis=1).max()) if len(index) else 0.0
+        if deepest <= settings.min_push * ell:  # no region deep enough to push: shrink the intersection curves
+            grad, length = contour_gradient(v, labeler.faces, labeler.intersecting_pairs(v))
             norm = np.linalg.norm(grad, axis=1)
-            index = np.flatnonzero(norm > 0)
-            if len(index) == 0:
+            moved = np.flatnonzero(norm > 0)
+            if len(moved):
+                grow = length < last_length
+                step = float(np.clip(step * (settings.contour_grow if grow else settings.contour_shrink),
+                                     settings.contour_min, settings.contour_max))
+                last_length = length
+                index, targets = moved, -grad[moved] * (step * ell / norm.max())
+            elif len(index) == 0:
                 break
-            targets = -grad[index] * (settings.contour_step * ell / norm.max())
         v += field.solve(index, targets, settings.hold)
     return Untangled(v, False, len(seen) - 1, seen)

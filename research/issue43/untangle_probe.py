@@ -1,10 +1,10 @@
 """Issue 43 probe: the untangle repair (region push + intersection contour minimisation) against the stop-33
 contact repair, on a run's colliding realistic meshes, both alone on the inputs (no neural step).
 
-    PYTHONPATH=. python research/issue43/untangle_probe.py RUN_DIR N [key=value ...]
+    PYTHONPATH=. python research/issue43/untangle_probe.py RUN_DIR [A:]B [key=value ...]
 
 RUN_DIR: a finished run (its labeler and topology; its realistic set is read from the cache of its latent space
-and labeler). N: the first N colliding meshes. key=value: UntangleSettings fields. Prints, per method, the share
+and labeler). [A:]B: the colliding meshes A (default 0) to B. key=value: UntangleSettings fields; --untangle-only skips the contact repair. Prints, per method, the share
 collision-free by the exact label, the median over meshes of the per-mesh median vertex displacement and the 95th
 percentile of the per-mesh largest one (fractions of the diagonal, in %), and seconds per mesh.
 """
@@ -32,11 +32,13 @@ def realistic_set(run) -> dict:
 
 def main() -> None:
     run = neuralcol.load_run(sys.argv[1], workers=0)
-    n = int(sys.argv[2])
-    kw = {k: float(v) if k != "max_iter" else int(v) for k, v in (a.split("=", 1) for a in sys.argv[3:])}
+    lo, _, hi = sys.argv[2].rpartition(":")
+    lo, hi = int(lo or 0), int(hi)
+    args = [a for a in sys.argv[3:] if a != "--untangle-only"]
+    kw = {k: float(v) if k != "max_iter" else int(v) for k, v in (a.split("=", 1) for a in args)}
     lab, faces = run.labeler, run.faces
     data = realistic_set(run)
-    pick = np.flatnonzero(data["pd"] > 0)[:n]
+    pick = np.flatnonzero(data["pd"] > 0)[lo:hi]
     meshes = data["vertices"][pick].astype(np.float64)
     us = UntangleSettings(**kw)
     field = SmoothField(faces, meshes.shape[1], us.stiffness, us.anchor)
@@ -46,6 +48,8 @@ def main() -> None:
                                                              max_step=0.002 * lab.diag),
         f"untangle {kw or 'defaults'}": lambda v: untangle(v, lab, us, field),
     }
+    if "--untangle-only" in sys.argv:
+        methods.pop("contact repair (stop 33)")
     for name, fn in methods.items():
         free, med, top, secs = [], [], [], []
         for v in meshes:
