@@ -231,6 +231,11 @@ def test_resolve_repair_first(trained, monkeypatch):
     assert free.any()
     assert res.repaired[free].all() and (res.pd_after[free] <= 0).all()
     np.testing.assert_array_equal(res.vertices[torch.as_tensor(free)].numpy(), direct[free])
+    # what the first repair frees skips the neural handler (resolve's skip_freed): the input's code comes back
+    np.testing.assert_array_equal(res.codes[torch.as_tensor(free)].cpu().numpy(),
+                                  res.codes_before[torch.as_tensor(free)].cpu().numpy())
+    assert torch.isnan(res.decoded[torch.as_tensor(free)]).all()
+    assert np.isfinite(res.pd_after).all()
 
 
 def test_load_run_errors_name_what_is_missing(run_dir, tmp_path):

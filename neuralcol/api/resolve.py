@@ -119,7 +119,7 @@ class ResolveMixin:
                 self.label_pool()  # the repair asks the run's labeler in this process
             res = resolve_meshes(self.on_codes, self.space, v_user, self._pd, settings, margins, batch,
                                  objective=target, anchor=anchor, z_user=z_user, repair=rep,
-                                 labeler=self._exact if rep is not None else None, certify=band)
+                                 labeler=self._exact if rep is not None else None, certify=band, skip_freed=True)
             used_margins = np.append(used_margins, np.nan)
             moved = displacement_stats(v_user.numpy(), res.vertices, diag)
             return Resolved(vertices=torch.as_tensor(res.vertices, dtype=torch.float64, device=self.device),

@@ -66,7 +66,8 @@ class Resolved(NamedTuple):
     displacement_mean, displacement_max, displacement_median (N,): how far the returned vertices lie from the
     input's (code inputs: from the decoded input code), in mesh units; divide by ``diagonal`` (the rest mesh's
     bounding-box diagonal) for a fraction. decoded (N, V, 3) float32: the handled codes decoded (the latent
-    result, in the decoder's frame).
+    result, in the decoder's frame); NaN, and ``codes`` the input's, where ``handler.repair.first`` freed the input
+    mesh and the neural handler was skipped.
     With ``certify`` (else None): exact (N,) bool: the verdict on the returned result is the exact labeler's
     (``pd_after`` is NaN where the detector was trusted instead); free (N,) bool: the certified cascade calls the
     returned result collision-free (exact PD <= 0, or the detector's logit below the band); exact_share: exact labels

@@ -232,7 +232,7 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
                    label: Callable[[np.ndarray], np.ndarray], settings: ALMSettings, margins=(),
                    batch_size: int = 256, objective=None, anchor: str = "median",
                    z_user: torch.Tensor | None = None, pd_input: np.ndarray | None = None, repair=None, labeler=None,
-                   progress: bool = False, certify=None) -> MeshResolution:
+                   progress: bool = False, certify=None, skip_freed: bool = False) -> MeshResolution:
     """Resolve self-collisions of the user's meshes and return the user's meshes, corrected (issue 27).
 
     The inputs are encoded; the augmented-Lagrangian handler moves each code to the nearest one the detector
@@ -258,6 +258,10 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
             ``pd_after_escalation`` still describe the neural path); needs ``labeler`` (``intersecting_pairs``,
             ``eps``).
         progress: a progress bar over the repaired meshes.
+        skip_freed: with ``repair.first``, the inputs the first repair frees skip the neural handler (what
+            ``resolve`` does for a user: most of its time is the handler's; their ``pd_after_detector`` and
+            ``pd_after_escalation`` are NaN, their codes the inputs', ``decoded`` NaN). False (the evaluations):
+            every input also takes the neural path, so both are measured.
         certify: a :class:`~neuralcol.metrics.cascade.Band` or None: verify through the certified cascade
             (:class:`CertifiedLabel`): a handled result is labeled exactly only where the latent detector's logit
             on its code lies in the band; below it the detector is trusted (free, kept), at or above it the result
@@ -294,8 +298,11 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
         return label(returned(z, rows).numpy())
 
     n = len(v_user)
-    decide = label_codes if certify is None else CertifiedLabel(certify, lambda z: detector_logits(net, z), label_codes)
     pd_in = label(v_user.numpy()) if pd_input is None else np.asarray(pd_input, np.float64)
+    if skip_freed and repair is not None and repair.first and (~(pd_in <= 0)).any():
+        return _repair_first_then_rest(net, space, v_user, label, settings, margins, batch_size, objective, anchor,
+                                       z_user, pd_in, repair, labeler, progress, certify)
+    decide = label_codes if certify is None else CertifiedLabel(certify, lambda z: detector_logits(net, z), label_codes)
     res = handle(np.arange(n), settings.margin)
     finite = res.finite.numpy()
     pd_after = np.full(n, np.nan)
@@ -314,16 +321,8 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
     out = out.numpy()
     pd_esc, repaired = pd_v.copy(), np.zeros(n, dtype=bool)
     if repair is not None:
-        from neuralcol.handler.contact_repair import outward_sign, repair_meshes
-
-        rest = space.rest_vertices.detach().cpu().numpy()
-        faces = space.faces.detach().cpu().numpy()
-        diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
-
         def repaired_meshes(meshes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            fixed, _, _ = repair_meshes(meshes, faces, labeler, repair, float(labeler.eps), diag,
-                                        outward_sign(faces, rest), progress=progress)
-            return fixed, label(fixed)
+            return _repaired(space, meshes, label, repair, labeler, progress)
 
         todo = np.flatnonzero(ok.numpy() & ~(pd_v <= 0))
         if len(todo):  # the neural result still collides: repair it
@@ -344,3 +343,55 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
     return MeshResolution(out, decoded.numpy(), z, z_user, pd_in, certified_outcome(pd_after)[0], pd_v, stage,
                           res.feasible.numpy(), certified_outcome(pd_esc)[0], repaired, exact, free,
                           decide.exact_share)
+
+
+def _repaired(space, meshes: np.ndarray, label, repair, labeler, progress: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The repair (``repair.method``) of meshes (n, V, 3) and their exact PD."""
+    from neuralcol.handler.contact_repair import outward_sign, repair_meshes
+
+    rest = space.rest_vertices.detach().cpu().numpy()
+    faces = space.faces.detach().cpu().numpy()
+    diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
+    fixed, _, _ = repair_meshes(meshes, faces, labeler, repair, float(labeler.eps), diag, outward_sign(faces, rest),
+                                progress=progress)
+    return fixed, label(fixed)
+
+
+def _repair_first_then_rest(net, space, v_user, label, settings, margins, batch_size, objective, anchor, z_user,
+                            pd_in, repair, labeler, progress, certify) -> MeshResolution:
+    """:func:`resolve_meshes` with ``skip_freed``: the colliding inputs repaired first; those it frees are done,
+    the others (and the free inputs) take the whole path with ``repair.first`` off."""
+    n = len(v_user)
+    first = np.flatnonzero(~(pd_in <= 0))
+    fixed, pd_fix = _repaired(space, v_user[torch.as_tensor(first)].numpy(), label, repair, labeler, progress)
+    ok = np.nan_to_num(pd_fix, nan=np.inf) <= 0
+    freed, rows = first[ok], np.setdiff1d(np.arange(n), first[ok])
+
+    def sub_objective(z: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+        return objective(z, torch.as_tensor(rows, device=idx.device)[idx])
+
+    sub = None
+    if len(rows):
+        sub = resolve_meshes(net, space, v_user[torch.as_tensor(rows)], label, settings, margins, batch_size,
+                             None if objective is None else sub_objective, anchor, z_user[torch.as_tensor(rows)],
+                             pd_in[rows], replace(repair, first=False), labeler, progress, certify)
+    nan = np.full(n, np.nan)
+    out = np.full(tuple(v_user.shape), np.nan)
+    decoded = np.full(tuple(v_user.shape), np.nan)
+    codes = z_user.clone().float()
+    pd_det, pd_v, pd_esc = nan.copy(), nan.copy(), nan.copy()
+    stage, feasible, repaired = np.zeros(n, np.int64), np.zeros(n, bool), np.zeros(n, bool)
+    out[freed], pd_v[freed], stage[freed], repaired[freed] = fixed[ok], pd_fix[ok], len(margins) + 1, True
+    exact = free = share = None
+    if certify is not None:
+        exact, free = np.zeros(n, bool), np.zeros(n, bool)
+        exact[freed] = free[freed] = True
+    if sub is not None:
+        r = torch.as_tensor(rows)
+        out[rows], decoded[rows], codes[r] = sub.vertices, sub.decoded, sub.codes.float()
+        pd_det[rows], pd_v[rows], pd_esc[rows] = sub.pd_after_detector, sub.pd_after, sub.pd_after_escalation
+        stage[rows], feasible[rows], repaired[rows] = sub.stage, sub.feasible, sub.repaired
+        if certify is not None:
+            exact[rows], free[rows], share = sub.exact, sub.free, sub.exact_share
+    return MeshResolution(out, decoded, codes, z_user, pd_in, pd_det, pd_v, stage, feasible, pd_esc, repaired,
+                          exact, free, share)
