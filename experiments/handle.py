@@ -13,6 +13,12 @@ self-penetrating are handled again with the larger margins of the run's ``handle
 ``--margins``), and the result with the lowest PD is kept; ``--no-verify`` trusts the detector alone. For
 meshes, verification includes the contact repair (``handler.repair``: intersecting triangles pushed apart, tried
 on the input first; margin ``repair`` in the table); ``--no-repair`` turns it off.
+
+A folder INPUT stands for its mesh files in name order. ``--sequence``: the meshes are the frames of a motion, in
+the order given, resolved so that the corrections vary smoothly in time (``TrainedRun.resolve_sequence``: each
+frame warm-started from the previous frame's correction; ``--rate`` the largest change of the correction between
+frames, as a multiple of the input's largest frame-to-frame move, default the run's ``handler.sequence.rate``);
+the table then gives each frame's verdict before and after and the correction's change from the previous frame.
 """
 
 from __future__ import annotations
@@ -68,6 +74,40 @@ def read_inputs(paths: list[Path], space: LatentSpace) -> tuple[list[str], torch
     return names, torch.cat(codes).float(), torch.cat(verts) if mesh_inputs else None
 
 
+def expand_folders(paths: list[Path]) -> list[Path]:
+    """Each folder in ``paths`` replaced by its mesh files in name order."""
+    out = []
+    for p in paths:
+        if p.is_dir():
+            files = sorted(q for q in p.iterdir() if q.suffix.lower() in MESH_SUFFIXES)
+            if not files:
+                raise UserInputError(f"{p}: a folder with no mesh files ({', '.join(MESH_SUFFIXES)})")
+            out += files
+        else:
+            out.append(p)
+    return out
+
+
+def resolve_frames(run: TrainedRun, names: list[str], v_user: torch.Tensor, args: argparse.Namespace,
+                   subset, out: Path) -> None:
+    """``--sequence``: resolve the frames as a motion, write them and print the per-frame table."""
+    before = run.label(v_user).collides
+    seq = run.resolve_sequence(v_user, rate=args.rate, objective=args.objective, verify=not args.no_verify,
+                               margins=args.margins, subset=subset,
+                               repair=False if getattr(args, "no_repair", False) else None)
+    diag = run.diagonal
+    print(f"{'frame':<24} {'collides in':>11} {'after':>6}  resolved  correction change (% of diagonal)")
+    for i, name in enumerate(names):
+        write_mesh(out / f"{name}_resolved.obj", seq.vertices[i], run.faces)
+        change = f"{100 * seq.correction_jump[i - 1] / diag:.3f}" if i else "-"
+        print(f"{name:<24} {str(bool(before[i])):>11} {str(bool(seq.collides[i])):>6}  {str(bool(seq.resolved[i])):>8}"
+              f"  {change}")
+    sys.stdout.flush()
+    print(f"wrote {len(names)} frames to {out}: {int((~seq.collides).sum())} free; the correction's largest change "
+          f"between frames {100 * seq.correction_jump.max(initial=0) / diag:.3f} % of the diagonal, the input's "
+          f"{100 * seq.input_jump.max(initial=0) / diag:.3f} % (ratio {seq.jump_ratio:.2f})", file=sys.stderr)
+
+
 @report_user_errors
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m experiments.handle", description=__doc__.splitlines()[0])
@@ -82,7 +122,12 @@ def main(argv: list[str] | None = None) -> None:
                         help="trust the detector: no exact check and no re-handling with larger margins")
     parser.add_argument("--no-repair", action="store_true",
                         help="no contact repair of meshes (default: the run's handler.repair)")
+    parser.add_argument("--sequence", action="store_true",
+                        help="the meshes are frames of a motion, in order: smooth corrections in time")
+    parser.add_argument("--rate", type=float, default=None,
+                        help="--sequence: the correction's largest change per frame, x the input's largest move")
     args = parser.parse_args(argv)
+    args.inputs = expand_folders(args.inputs)
     with load_trained_run(args.run_dir) as run:
         resolve_files(run, args)
 
@@ -97,11 +142,16 @@ def resolve_files(run: TrainedRun, args: argparse.Namespace) -> None:
         subset = np.loadtxt(args.vertices, dtype=np.int64).reshape(-1)
         if len(subset) == 0 or subset.min() < 0 or subset.max() >= run.n_vertices:
             raise UserInputError(f"{args.vertices}: vertex indices must lie in [0, {run.n_vertices})")
+    out = args.out or args.run_dir / "handled"
+    out.mkdir(parents=True, exist_ok=True)
+    if getattr(args, "sequence", False):
+        if v_user is None:
+            raise UserInputError("--sequence needs mesh inputs (the frames of a motion), not latent codes")
+        resolve_frames(run, names, v_user, args, subset, out)
+        return
     res = run.resolve(v_user if v_user is not None else z_user, objective=args.objective,
                       verify=not args.no_verify, margins=args.margins, subset=subset,
                       repair=False if getattr(args, "no_repair", False) else None)
-    out = args.out or args.run_dir / "handled"
-    out.mkdir(parents=True, exist_ok=True)
     after = res.vertices.double().cpu().numpy()
     print(f"{'input':<24} {'PD input':>10} {'PD decoded':>11} {'PD result':>10}  |Z - Z_user|  margin  "
           "moved (median / max, % of diagonal)")

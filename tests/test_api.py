@@ -289,6 +289,39 @@ def test_handle_cli_on_a_mesh(run_dir, trained, tmp_path, capsys):
     assert (tmp_path / "out" / "pose_resolved.obj").is_file()
 
 
+def test_resolve_sequence_and_the_cli_on_a_folder_of_frames(run_dir, trained, tmp_path, capsys):
+    """A motion from a free decoded mesh into a colliding one and back: resolve_sequence frees at least what
+    resolving each frame alone frees, keeps the correction's frame-to-frame change within its rate where it
+    freed, and the CLI takes the frames as a folder (--sequence)."""
+    from experiments.handle import main
+    from neuralcol import write_mesh
+
+    z = _codes(trained, 200, 7)
+    verts = trained.decode(z).double()
+    hit = trained.label(verts).collides
+    a, b = int(np.flatnonzero(~hit)[0]), int(np.flatnonzero(hit)[0])
+    t = torch.cat([torch.linspace(0, 1, 4), torch.linspace(1, 0, 4)[1:]]).double()[:, None, None]
+    frames = (1 - t) * verts[a] + t * verts[b]
+    seq = trained.resolve_sequence(frames, progress=False, margins=[4.0])
+    alone = trained.resolve(frames, margins=[4.0])
+    assert seq.vertices.shape == tuple(frames.shape) and len(seq.correction_jump) == len(frames) - 1
+    assert (~seq.collides).sum() >= (np.nan_to_num(alone.pd_after, nan=1.0) <= 0).sum()
+    np.testing.assert_array_equal(seq.collides, trained.label(seq.vertices).collides)
+    assert seq.rate > 0 and np.isfinite(seq.jump_ratio)
+    assert not seq.resolved[0]  # the free first frame is left alone
+    np.testing.assert_array_equal(seq.vertices[0], frames[0].numpy())
+    with pytest.raises(UserInputError, match="at least 2"):
+        trained.resolve_sequence(frames[:1])
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, f in enumerate(frames[:3]):
+        write_mesh(folder / f"f{i:02d}.obj", f.numpy(), trained.faces)
+    main([str(run_dir), str(folder), "--sequence", "--out", str(tmp_path / "out"), "--margins", "4"])
+    out = capsys.readouterr()
+    assert "correction change" in out.out and "ratio" in out.err
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [f"f{i:02d}_resolved.obj" for i in range(3)]
+
+
 def _live(trained, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     det = trained.detect(z)
     return trained.decode(z), det.prob, det.pd

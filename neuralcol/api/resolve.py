@@ -24,6 +24,46 @@ class ResolveMixin:
         except ValueError as e:
             raise UserInputError(f"{self.run_dir}/.hydra/config.yaml: {e}") from e
 
+    def resolve_sequence(self, frames, rate: float | None = None, progress: bool = True, **resolve_kwargs):
+        """Resolve a motion: every frame freed, the corrections varying smoothly in time (issue 43;
+        :mod:`neuralcol.handler.sequence`): each frame is warm-started from the previous frame's correction and
+        resolved (:meth:`resolve`, one mesh, with ``resolve_kwargs``) only where that start collides; corrections
+        decay where no longer needed and ramp in before a collision, at most ``rate`` per vertex and frame.
+
+        Args:
+            frames: (T, V, 3) the frames in order (T >= 2), numpy or torch.
+            rate: the largest change of the correction between frames, as a multiple of the input's own largest
+                frame-to-frame vertex move (None: ``handler.sequence.rate``, default 1.0).
+            progress: a progress bar over the frames.
+
+        Returns:
+            :class:`~neuralcol.handler.sequence.SequenceResolution` (vertices, collides, resolved, correction_jump,
+            input_jump, rate, jump_ratio).
+        """
+        from neuralcol.handler.sequence import frame_jumps, resolve_sequence
+        from neuralcol.utils.progress import progress_bar
+
+        v = self._vertices(frames, name="frames").numpy()
+        if len(v) < 2:
+            raise UserInputError(f"frames: {len(v)} frame; a sequence needs at least 2 (use resolve for one mesh)")
+        factor = float(rate if rate is not None else
+                       OmegaConf.select(self.cfg, "handler.sequence.rate", default=1.0))
+        if not factor > 0:
+            raise UserInputError(f"rate={factor}: must be > 0 (a multiple of the input's largest frame-to-frame move)")
+        top = float(frame_jumps(v).max())
+        step = factor * (top if top > 0 else 1e-3 * self.diagonal)  # a still input: 0.1 % of the diagonal
+        self.label_pool()
+        lab = self._exact
+
+        def resolve_one(mesh: np.ndarray) -> np.ndarray:
+            return self.resolve(mesh[None], **resolve_kwargs).vertices[0].detach().cpu().numpy().astype(np.float64)
+
+        bar = progress_bar(total=len(v), desc="resolving frames", disable=not progress)
+        try:
+            return resolve_sequence(v, resolve_one, lambda m: bool(lab.verdict(m)), step,
+                                    progress=lambda t: bar.update(1))
+        finally:
+            bar.close()
 
     def resolve(self, vertices_or_codes, objective: str = "latent", verify: bool = True, margins=None,
                 subset=None, anchor: str = "median", repair: bool | None = None, certify: float | None = None, *,
