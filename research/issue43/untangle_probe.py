@@ -4,9 +4,10 @@ contact repair, on a run's colliding realistic meshes, both alone on the inputs 
     PYTHONPATH=. python research/issue43/untangle_probe.py RUN_DIR [A:]B [key=value ...]
 
 RUN_DIR: a finished run (its labeler and topology; its realistic set is read from the cache of its latent space
-and labeler). [A:]B: the colliding meshes A (default 0) to B. key=value: UntangleSettings fields; --untangle-only skips the contact repair. Prints, per method, the share
-collision-free by the exact label, the median over meshes of the per-mesh median vertex displacement and the 95th
-percentile of the per-mesh largest one (fractions of the diagonal, in %), and seconds per mesh.
+and labeler). [A:]B: the colliding meshes A (default 0) to B. key=value: UntangleSettings fields;
+--untangle-only skips the contact repair. Prints, per method, the share collision-free by the exact label, the
+median over meshes of the per-mesh median vertex displacement and the 95th percentile of the per-mesh largest one
+(fractions of the diagonal, in %), and seconds per mesh.
 """
 
 from __future__ import annotations
