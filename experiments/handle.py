@@ -88,6 +88,16 @@ def expand_folders(paths: list[Path]) -> list[Path]:
     return out
 
 
+def input_kinds(run: TrainedRun, v_user: torch.Tensor | None, pd_input: np.ndarray) -> list[str]:
+    """Per input, the kind of its collision (deep, local fold, distant contact; :mod:`neuralcol.handler.
+    collision_kinds`), "-" where it is free or a code."""
+    from neuralcol.handler.collision_kinds import collision_kind
+
+    if v_user is None:
+        return ["-"] * len(pd_input)
+    return [collision_kind(run.labeler, v.numpy()) or "-" if pd > 0 else "-" for v, pd in zip(v_user, pd_input)]
+
+
 def resolve_frames(run: TrainedRun, names: list[str], v_user: torch.Tensor, args: argparse.Namespace,
                    subset, out: Path) -> None:
     """``--sequence``: resolve the frames as a motion, write them and print the per-frame table."""
@@ -153,15 +163,16 @@ def resolve_files(run: TrainedRun, args: argparse.Namespace) -> None:
                       verify=not args.no_verify, margins=args.margins, subset=subset,
                       repair=False if getattr(args, "no_repair", False) else None)
     after = res.vertices.double().cpu().numpy()
+    kinds = input_kinds(run, v_user, res.pd_input)
     print(f"{'input':<24} {'PD input':>10} {'PD decoded':>11} {'PD result':>10}  |Z - Z_user|  margin  "
-          "moved (median / max, % of diagonal)")
+          "moved (median / max, % of diagonal)  kind of collision (input)")
     for i, name in enumerate(names):
         write_mesh(out / f"{name}_resolved.obj", after[i], run.faces)
         print(f"{name:<24} {res.pd_input[i]:>10.4g} {res.pd_before[i]:>11.4g} {res.pd_after[i]:>10.4g}  "
               f"{float((res.codes[i] - res.codes_before[i]).norm()):>12.2f}  "
               f"{'repair' if res.repaired is not None and res.repaired[i] else f'{res.margin[i]:g}'}  "
               f"{100 * res.displacement_median[i] / res.diagonal:.3f} / "
-              f"{100 * res.displacement_max[i] / res.diagonal:.3f}")
+              f"{100 * res.displacement_max[i] / res.diagonal:.3f}  {kinds[i]}")
     sys.stdout.flush()
     outside = int(run.space.outside_box(res.codes_before).sum())
     if outside:

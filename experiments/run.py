@@ -364,6 +364,10 @@ def print_realistic(r: dict | None) -> None:
         print(f"  resolve on {h['n']} colliding meshes: collision-free {h['detector_only']['resolved_rate']:.1%} "
               f"detector-guided, {h['verified']['resolved_rate']:.1%} verified; median vertex displacement "
               f"{'n/a' if med is None else f'{med:.2%}'} of the diagonal")
+        kinds = h.get("verified_by_kind")
+        if kinds:
+            print("    by kind of collision: " + ", ".join(
+                f"{k} {v['freed']}/{v['n']} freed" for k, v in kinds.items() if v["n"]))
         if h.get("repair"):
             print(f"    (verified with the handler's margins alone {h['verified_margins_only']['resolved_rate']:.1%}; "
                   f"{h['repair']['n_repaired']} of the returned meshes are the contact repair's)")

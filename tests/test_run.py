@@ -189,6 +189,10 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
             assert detection_metrics(logit[clear] > 0, pd[clear] > 0)["accuracy"] == r["detection"]["accuracy"]
         if "handled" in f:
             assert (pd[f["handled"]] > 0).all() and len(f["handled"]) == r["handling"]["n"] <= 4
+            by_kind = r["handling"]["verified_by_kind"]  # issue 43: every handled input has one kind
+            assert sum(k["n"] for k in by_kind.values()) == r["handling"]["n"]
+            freed = int((np.nan_to_num(f["handled_pd_after"], nan=1.0) <= 0).sum())
+            assert sum(k["freed"] for k in by_kind.values()) == freed
     # one detector (issue 41): no separate mesh detector beside it, in the metrics or the run directory
     assert "mesh_detector" not in saved and "detection_mesh" not in r
     assert not (tmp_path / "run" / "mesh_detector.pt").exists()

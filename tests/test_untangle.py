@@ -121,3 +121,45 @@ def test_untangle_settings_refuse_bad_values():
         UntangleSettings(contour_step=2.0)
     with pytest.raises(ValueError, match="vertices have shape"):
         untangle(np.zeros((3, 2)), None, UntangleSettings())
+
+
+def _folded_strip(c):
+    """A 10 x 24 grid strip (x in [-1, 1], y in [-1, 3]); with ``c``, its part beyond y = 1 folded back over the
+    rest (y -> 2 - y) at height 0.8 s (s - c), s the distance from the crease: below the strip (through it) for
+    s < c. None: the flat strip."""
+    nx, ny = 10, 24
+    x, y = np.meshgrid(np.linspace(-1, 1, nx), np.linspace(-1, 3, ny), indexing="ij")
+    flat = np.stack([x.ravel(), y.ravel(), np.zeros(nx * ny)], 1)
+    quad = np.array([[i * ny + j, i * ny + j + ny, i * ny + j + 1] for i in range(nx - 1) for j in range(ny - 1)])
+    faces = np.concatenate([quad, np.stack([quad[:, 2], quad[:, 1], quad[:, 1] + 1], 1)])
+    if c is None:
+        return flat, faces
+    v = flat.copy()
+    top = flat[:, 1] > 1
+    s = flat[top, 1] - 1
+    v[top, 1] = 1 - s
+    v[top, 2] = 0.8 * s * (s - c)
+    return v, faces
+
+
+def test_collision_kinds_of_analytic_cases():
+    """deep: one sphere 0.8 radius into another; distant contact: a shallow overlap of two spheres, a bump
+    through another sheet (separate components), a strip folded back through itself far from the crease; local
+    fold: the strip through itself next to the crease; None: free. outcome_by_kind counts per kind."""
+    from neuralcol.handler.collision_kinds import collision_kind, outcome_by_kind
+
+    rest, faces = _spheres(3.0)
+    lab = ExactLabeler(faces, rest)
+    assert collision_kind(lab, _spheres(1.2)[0]) == "deep"
+    assert collision_kind(lab, _spheres(1.97)[0]) == "distant contact"
+    assert collision_kind(lab, _spheres(2.5)[0]) is None
+    sheet, sheet_faces = _bump_through_sheet(-0.2)
+    assert collision_kind(ExactLabeler(sheet_faces, _bump_through_sheet(0.3)[0]), sheet) == "distant contact"
+    strip, strip_faces = _folded_strip(None)
+    lab_strip = ExactLabeler(strip_faces, strip)
+    assert collision_kind(lab_strip, _folded_strip(0.3)[0]) == "local fold"  # through itself next to the crease
+    assert collision_kind(lab_strip, _folded_strip(1.5)[0]) == "distant contact"  # 8+ rows from it
+    counts = outcome_by_kind(lab, np.stack([_spheres(1.2)[0], _spheres(1.97)[0], _spheres(1.3)[0]]),
+                             np.array([True, False, False]))
+    assert counts["deep"] == {"n": 2, "freed": 1, "rate": 0.5}
+    assert counts["distant contact"]["n"] == 1 and counts["local fold"]["n"] == 0

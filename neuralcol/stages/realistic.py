@@ -239,6 +239,11 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
             "displacement_median": float(np.nanmedian(moved["median"][ok])) if ok.any() else None,
             "diagonal": diag, "seconds": t_handle,
         }
+        # the inputs' kinds of collision (deep, local fold, distant contact) and how many of each came out free
+        from neuralcol.handler.collision_kinds import outcome_by_kind
+
+        metrics["handling"]["verified_by_kind"] = outcome_by_kind(
+            pool.labeler, meshes.vertices[pick], np.nan_to_num(res.pd_after, nan=np.inf) <= 0)
         arrays.update({"handled": pick, "handled_pd_after_detector": res.pd_after_detector,
                        "handled_pd_after": res.pd_after, "handled_displacement_median_frac": moved["median_frac"],
                        "handled_displacement_max_frac": moved["max_frac"], "handled_repaired": res.repaired})
