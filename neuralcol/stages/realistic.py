@@ -227,7 +227,8 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
         def moved_summary(m: dict, ok: np.ndarray) -> dict:
             return {"displacement_median_frac": float(np.nanmedian(m["median_frac"][ok])) if ok.any() else None,
                     "displacement_mean_frac": float(np.nanmedian(m["mean_frac"][ok])) if ok.any() else None,
-                    "displacement_max_frac": float(np.nanmedian(m["max_frac"][ok])) if ok.any() else None}
+                    "displacement_max_frac": float(np.nanmedian(m["max_frac"][ok])) if ok.any() else None,
+                    "displacement_max_frac_p95": float(np.nanpercentile(m["max_frac"][ok], 95)) if ok.any() else None}
 
         metrics["handling"] = {
             "n": int(len(pick)), "anchor": str(c.get("anchor", "median")),
