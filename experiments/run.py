@@ -181,10 +181,10 @@ def stage_realistic(s: RunState) -> None:
     m, s.real_arrays = evaluate_realistic(
         s.space, s.detector(), meshes, pd_real, s.pool, float(s.sample_labeler.eps), cfg.realistic, s.settings,
         list(cfg.handler.verify_margins), int(cfg.handler.batch_size), repair=repair_from_config(cfg),
-        references=s.ref_spaces)
+        references=s.ref_spaces, render_dir=s.rd.realistic_renders)
     m.update({"from_cache": real_cached, "stage_seconds": time.perf_counter() - t_r})
     np.savez_compressed(s.rd.realistic_predictions, **s.real_arrays)
-    log_realistic(s.logger, m, s.det["rounds"][-1]["dataset_size"])
+    log_realistic(s.logger, m, s.det["rounds"][-1]["dataset_size"], s.rd.realistic_renders)
     s.metrics["realistic"] = m
 
 
@@ -330,8 +330,9 @@ def log_latent(run_dir: Path, metrics: dict) -> None:
     logger.finalize("success")
 
 
-def log_realistic(logger, m: dict, step: int) -> None:
-    """TensorBoard scalars of the realistic set under ``realistic/`` (at the final |D_c|)."""
+def log_realistic(logger, m: dict, step: int, render_dir=None) -> None:
+    """TensorBoard scalars of the realistic set under ``realistic/`` (at the final |D_c|), and resolve's
+    before/after pictures (``realistic/resolve_<kind>``) from ``render_dir``."""
     scalars = {f"realistic/{k}": m["detection"].get(k) for k in ("accuracy", "fnr", "fpr", "skill")}
     scalars["realistic/round_trip_agreement"] = m["round_trip"]["agreement"]
     scalars["realistic/out_of_box"] = m["round_trip"]["out_of_box"]
@@ -344,6 +345,13 @@ def log_realistic(logger, m: dict, step: int) -> None:
     for k, v in scalars.items():
         if v is not None and np.isfinite(v):
             logger.experiment.add_scalar(k, float(v), global_step=step)
+    if h and render_dir is not None:
+        import matplotlib.image as mpimg
+
+        for kind, name in (h.get("renders") or {}).items():
+            img = mpimg.imread(Path(render_dir) / name)[..., :3]
+            logger.experiment.add_image(f"realistic/resolve_{kind.replace(' ', '_')}", img, global_step=step,
+                                        dataformats="HWC")
 
 
 def print_realistic(r: dict | None) -> None:

@@ -16,6 +16,7 @@ Run directory (one run)::
     test_predictions.npz        the detector on the U(Z) test set  realistic_predictions.npz  on the realistic set
     cascade.npz                 the detector's logits on the cascade's calibration set and their exact labels
     handling/  examples/  round_examples/  subdomains.png  speed_accuracy.png  tensorboard/<stage>/
+    realistic_renders/          resolve on the realistic set, before and after, one input per kind of collision
     package.json  latent_space.pt   a packed run only (neuralcol.api.package: pretrained/<name>/)
 
 Cache directory (shared by runs)::
@@ -56,6 +57,7 @@ class RunDir:
     checkpoint = _File("checkpoints", "detector.ckpt")
     test_predictions = _File("test_predictions.npz")
     realistic_predictions = _File("realistic_predictions.npz")
+    realistic_renders = _File("realistic_renders")  # resolve before/after, one colliding input per kind (issue 43)
     cascade = _File("cascade.npz")  # calibration logits + labels of the certified cascade (neuralcol.stages.cascade)
     handling = _File("handling")
     examples = _File("examples")

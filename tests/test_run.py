@@ -193,6 +193,9 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
             assert sum(k["n"] for k in by_kind.values()) == r["handling"]["n"]
             freed = int((np.nan_to_num(f["handled_pd_after"], nan=1.0) <= 0).sum())
             assert sum(k["freed"] for k in by_kind.values()) == freed
+            renders = r["handling"]["renders"]  # one before/after picture per kind present
+            assert set(renders) == {k for k, v in by_kind.items() if v["n"]}
+            assert all((tmp_path / "run" / "realistic_renders" / name).is_file() for name in renders.values())
     # one detector (issue 41): no separate mesh detector beside it, in the metrics or the run directory
     assert "mesh_detector" not in saved and "detection_mesh" not in r
     assert not (tmp_path / "run" / "mesh_detector.pt").exists()

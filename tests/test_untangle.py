@@ -146,7 +146,7 @@ def test_collision_kinds_of_analytic_cases():
     """deep: one sphere 0.8 radius into another; distant contact: a shallow overlap of two spheres, a bump
     through another sheet (separate components), a strip folded back through itself far from the crease; local
     fold: the strip through itself next to the crease; None: free. outcome_by_kind counts per kind."""
-    from neuralcol.handler.collision_kinds import collision_kind, outcome_by_kind
+    from neuralcol.handler.collision_kinds import collision_kind, kinds_of, outcome_by_kind
 
     rest, faces = _spheres(3.0)
     lab = ExactLabeler(faces, rest)
@@ -159,7 +159,7 @@ def test_collision_kinds_of_analytic_cases():
     lab_strip = ExactLabeler(strip_faces, strip)
     assert collision_kind(lab_strip, _folded_strip(0.3)[0]) == "local fold"  # through itself next to the crease
     assert collision_kind(lab_strip, _folded_strip(1.5)[0]) == "distant contact"  # 8+ rows from it
-    counts = outcome_by_kind(lab, np.stack([_spheres(1.2)[0], _spheres(1.97)[0], _spheres(1.3)[0]]),
+    counts = outcome_by_kind(kinds_of(lab, np.stack([_spheres(1.2)[0], _spheres(1.97)[0], _spheres(1.3)[0]])),
                              np.array([True, False, False]))
     assert counts["deep"] == {"n": 2, "freed": 1, "rate": 0.5}
     assert counts["distant contact"]["n"] == 1 and counts["local fold"]["n"] == 0

@@ -46,11 +46,15 @@ def edge_graph(faces: np.ndarray, n_vertices: int):
     return ((a + a.T) > 0).astype(np.float64).tocsr()
 
 
-def outcome_by_kind(labeler, inputs: np.ndarray, freed: np.ndarray) -> dict[str, dict[str, float]]:
-    """For colliding input meshes (n, V, 3) and whether each was freed (n,) bool: per kind, how many inputs
-    (``n``), how many freed (``freed``) and the rate (``rate``; NaN for none); inputs the labeler finds free are
-    left out."""
-    kinds = [collision_kind(labeler, m) for m in inputs]
+def kinds_of(labeler, meshes) -> list[str | None]:
+    """:func:`collision_kind` of each mesh (n, V, 3)."""
+    return [collision_kind(labeler, m) for m in meshes]
+
+
+def outcome_by_kind(kinds: list[str | None], freed: np.ndarray) -> dict[str, dict[str, float]]:
+    """For colliding inputs' kinds (:func:`kinds_of`) and whether each was freed (n,) bool: per kind, how many
+    inputs (``n``), how many freed (``freed``) and the rate (``rate``; NaN for none); inputs of no kind (the
+    labeler finds them free) are left out."""
     freed = np.asarray(freed, bool)
     out = {}
     for k in KINDS:

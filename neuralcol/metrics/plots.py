@@ -84,3 +84,17 @@ def render_mesh_png(path: str | Path, vertices: np.ndarray, faces: np.ndarray, v
     fig.savefig(path, dpi=80, bbox_inches="tight")
     plt.close(fig)
     return path
+
+
+def stack_pngs(paths: Sequence[str | Path], out: str | Path) -> Path:
+    """One PNG of several stacked top to bottom (padded to the widest), e.g. a mesh before and after."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.image as mpimg
+
+    imgs = [mpimg.imread(p)[..., :3] for p in paths]
+    width = max(i.shape[1] for i in imgs)
+    rows = [np.pad(i, ((0, 0), (0, width - i.shape[1]), (0, 0)), constant_values=1.0) for i in imgs]
+    mpimg.imsave(out, np.clip(np.concatenate(rows, 0), 0.0, 1.0))
+    return Path(out)

@@ -142,7 +142,7 @@ def round_trip_agreement(pd_round_trip: np.ndarray, truth: np.ndarray, clear: np
 
 def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd: np.ndarray, pool, eps: float,
                        cfg, settings: ALMSettings, margins=(), batch_size: int = 256, repair=None,
-                       references: dict | None = None) -> tuple[dict, dict]:
+                       references: dict | None = None, render_dir: str | Path | None = None) -> tuple[dict, dict]:
     """The detector, the autoencoder's round trip and the handler on the realistic meshes.
 
     Args:
@@ -158,6 +158,8 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
             (``handling.repair_only``).
         references: ``{name: latent space}`` whose round trips are judged beside the run's
             (``round_trip.references``: the PCA references of issue 40); None: none.
+        render_dir: where to render resolve's before and after for one handled input of each kind of collision
+            (:func:`render_resolutions`; ``handling.renders`` lists the files); None: no pictures.
 
     Returns:
         (metrics, arrays: per-mesh codes, logits, labels, round-trip PD and the handler's results).
@@ -241,10 +243,14 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
             "diagonal": diag, "seconds": t_handle,
         }
         # the inputs' kinds of collision (deep, local fold, distant contact) and how many of each came out free
-        from neuralcol.handler.collision_kinds import outcome_by_kind
+        from neuralcol.handler.collision_kinds import kinds_of, outcome_by_kind
 
-        metrics["handling"]["verified_by_kind"] = outcome_by_kind(
-            pool.labeler, meshes.vertices[pick], np.nan_to_num(res.pd_after, nan=np.inf) <= 0)
+        kinds = kinds_of(pool.labeler, meshes.vertices[pick])
+        freed = np.nan_to_num(res.pd_after, nan=np.inf) <= 0
+        metrics["handling"]["verified_by_kind"] = outcome_by_kind(kinds, freed)
+        if render_dir is not None:
+            metrics["handling"]["renders"] = render_resolutions(render_dir, meshes.vertices[pick], res.vertices, kinds,
+                                                                freed, pool.labeler, diag)
         arrays.update({"handled": pick, "handled_pd_after_detector": res.pd_after_detector,
                        "handled_pd_after": res.pd_after, "handled_displacement_median_frac": moved["median_frac"],
                        "handled_displacement_max_frac": moved["max_frac"], "handled_repaired": res.repaired})
@@ -263,3 +269,38 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
             arrays["handled_pd_after_repair_only"] = pd_fix
     metrics["seconds"] = time.perf_counter() - t0
     return metrics, arrays
+
+
+def render_resolutions(out_dir: str | Path, inputs: np.ndarray, outputs: np.ndarray, kinds: list, freed: np.ndarray,
+                       labeler, diag: float) -> dict[str, str]:
+    """For one input of each kind of collision (the first freed one, else the first), a PNG of the input (top,
+    penetrating vertices red, darker deeper) over resolve's result (bottom, what still penetrates red):
+    ``<out_dir>/resolve_<kind>.png``. Returns ``{kind: file name}``."""
+    from neuralcol.handler.collision_kinds import KINDS
+    from neuralcol.metrics.plots import depth_colors, render_mesh_png, stack_pngs
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    faces = labeler.faces
+    written = {}
+    for kind in KINDS:
+        rows = [i for i, k in enumerate(kinds) if k == kind]
+        if not rows:
+            continue
+        i = next((r for r in rows if freed[r]), rows[0])
+        if not np.isfinite(outputs[i]).all():
+            continue
+        moved = np.linalg.norm(outputs[i] - inputs[i], axis=1) / diag
+        name = kind.replace(" ", "_")
+        parts = []
+        for tag, v, title in (
+                ("in", inputs[i], f"{kind}: input, PD {labeler.label(inputs[i]).pd / diag:.2%} of the diagonal"),
+                ("out", outputs[i], f"resolved: {'free' if freed[i] else 'still colliding'}; vertices moved median "
+                                    f"{np.median(moved):.3%}, largest {moved.max():.2%}")):
+            parts.append(render_mesh_png(out_dir / f"_{name}_{tag}.png", v, faces,
+                                         depth_colors(labeler.vertex_depths(v)), views=((15, -90), (15, 0)),
+                                         title=title, size=3.0))
+        written[kind] = stack_pngs(parts, out_dir / f"resolve_{name}.png").name
+        for p in parts:
+            p.unlink()
+    return written
