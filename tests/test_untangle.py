@@ -163,3 +163,29 @@ def test_collision_kinds_of_analytic_cases():
                              np.array([True, False, False]))
     assert counts["deep"] == {"n": 2, "freed": 1, "rate": 0.5}
     assert counts["distant contact"]["n"] == 1 and counts["local fold"]["n"] == 0
+
+
+def test_contact_untangle_is_the_push_where_it_frees_and_untangle_elsewhere():
+    """handler.repair.method=contact_untangle: the contact push's mesh where it frees the input; where it does not
+    (no iterations allowed here), untangle's from the input, bit for bit."""
+    from neuralcol.handler.contact_repair import RepairSettings, outward_sign, repair_meshes
+
+    rest, faces = _spheres(3.0)
+    lab = ExactLabeler(faces, rest)
+    v = np.stack([_spheres(1.9)[0], _spheres(1.2)[0]])
+    sign = outward_sign(faces, rest)
+
+    def repaired(**kw):
+        return repair_meshes(v, faces, lab, RepairSettings(**kw), lab.eps, lab.diag, sign)
+
+    contact, ok_c, _ = repaired(method="contact")
+    untangled, ok_u, _ = repaired(method="untangle")
+    both, ok_b, _ = repaired(method="contact_untangle")
+    assert ok_u.all() and ok_b.all()
+    for k in range(2):
+        np.testing.assert_array_equal(both[k], contact[k] if ok_c[k] else untangled[k])
+    forced, ok_f, _ = repaired(method="contact_untangle", max_iter=0)
+    assert ok_f.all()
+    np.testing.assert_array_equal(forced, untangled)
+    with pytest.raises(ValueError, match="contact_untangle"):
+        RepairSettings(method="push")

@@ -147,6 +147,9 @@ def repair_contacts(vertices: np.ndarray, faces: np.ndarray, labeler, delta: flo
     return Repair(v, False, max_iter, seen)
 
 
+REPAIR_METHODS = ("contact", "untangle", "contact_untangle")
+
+
 @dataclass(frozen=True)
 class RepairSettings:
     """Settings of the contact repair (``handler.repair`` in ``conf/handler/default.yaml``)."""
@@ -158,15 +161,16 @@ class RepairSettings:
     max_iter: int = 60
     max_step: float = 0.002     # no vertex moves more than this fraction of the diagonal per iteration
     first: bool = True          # resolve: repair the input first, the neural handler only for what it leaves
-    method: str = "contact"     # contact: this module's push; untangle: region push + contour minimisation
+    method: str = "contact"     # contact: this module's push; untangle: region push + contour minimisation;
+                                # contact_untangle: the push, and untangle (from the input) where it fails
     untangle: dict | None = None  # settings of neuralcol.handler.untangle.UntangleSettings (None: its defaults)
 
     def __post_init__(self):
         if self.delta <= 0 or self.smooth_steps < 0 or self.max_iter < 0 or self.max_step <= 0:
             raise ValueError(f"handler.repair {self}: need delta > 0, smooth_steps >= 0, max_iter >= 0, "
                              "max_step > 0")
-        if self.method not in ("contact", "untangle"):
-            raise ValueError(f"handler.repair.method={self.method!r}; use contact or untangle")
+        if self.method not in REPAIR_METHODS:
+            raise ValueError(f"handler.repair.method={self.method!r}; use one of {', '.join(REPAIR_METHODS)}")
 
 
 def repair_settings(cfg) -> RepairSettings | None:
@@ -199,8 +203,9 @@ def repair_from_config(cfg, enabled: bool | None = None, overrides=()) -> Repair
 
 def repair_meshes(vertices: np.ndarray, faces: np.ndarray, labeler, settings: RepairSettings, eps: float,
                   diagonal: float, sign: float, progress: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The repair of every mesh (N, V, 3), in this process: :func:`repair_contacts`, or with ``method: untangle``
-    :func:`~neuralcol.handler.untangle.untangle` (``settings.untangle``).
+    """The repair of every mesh (N, V, 3), in this process: :func:`repair_contacts`, with ``method: untangle``
+    :func:`~neuralcol.handler.untangle.untangle` (``settings.untangle``), with ``method: contact_untangle`` the
+    former and, for the meshes it leaves colliding, the latter from the input (iterations: the two summed).
 
     Args:
         eps: the labeler's boundary width (``settings.delta`` is in its units).
@@ -214,18 +219,22 @@ def repair_meshes(vertices: np.ndarray, faces: np.ndarray, labeler, settings: Re
 
     v = np.asarray(vertices, np.float64)
     out, ok, its = np.empty_like(v), np.zeros(len(v), bool), np.zeros(len(v), np.int64)
-    if settings.method == "untangle":
+    untangle_one = contact_one = None
+    if settings.method in ("untangle", "contact_untangle") and len(v):
         from neuralcol.handler.untangle import SmoothField, UntangleSettings, untangle
 
         us = UntangleSettings(**(settings.untangle or {}))
-        field = SmoothField(faces, v.shape[1], us.stiffness, us.anchor) if len(v) else None
-        repair_one = lambda x: untangle(x, labeler, us, field)  # noqa: E731
-    else:
-        w = diffusion_operator(faces, v.shape[1]) if len(v) else None
-        repair_one = lambda x: repair_contacts(  # noqa: E731
+        field = SmoothField(faces, v.shape[1], us.stiffness, us.anchor)
+        untangle_one = lambda x: untangle(x, labeler, us, field)  # noqa: E731
+    if settings.method in ("contact", "contact_untangle") and len(v):
+        w = diffusion_operator(faces, v.shape[1])
+        contact_one = lambda x: repair_contacts(  # noqa: E731
             x, faces, labeler, settings.delta * eps, settings.smooth_steps, settings.max_iter, sign, w,
             max_step=settings.max_step * diagonal, max_smooth=settings.max_smooth)
     for k in progress_bar(range(len(v)), desc="contact repair", unit="mesh", disable=not progress or len(v) == 0):
-        r = repair_one(v[k])
+        r = (contact_one or untangle_one)(v[k])
         out[k], ok[k], its[k] = r.vertices, r.resolved, r.iterations
+        if not r.resolved and contact_one is not None and untangle_one is not None:
+            u = untangle_one(v[k])
+            out[k], ok[k], its[k] = u.vertices, u.resolved, r.iterations + u.iterations
     return out, ok, its
