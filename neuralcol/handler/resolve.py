@@ -324,18 +324,22 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
         def repaired_meshes(meshes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return _repaired(space, meshes, label, repair, labeler, progress)
 
-        todo = np.flatnonzero(ok.numpy() & ~(pd_v <= 0))
+        # repair first: the input repaired, kept wherever it comes out free (so the neural result of those rows is
+        # not repaired: that mesh would be replaced; the same outputs, less work)
+        first = np.flatnonzero(~(pd_in <= 0)) if repair.first else np.zeros(0, np.int64)
+        first_fixed, first_pd = (repaired_meshes(v_user[torch.as_tensor(first)].numpy()) if len(first)
+                                 else (None, np.zeros(0)))
+        first_free = np.nan_to_num(first_pd, nan=np.inf) <= 0
+        todo = np.setdiff1d(np.flatnonzero(ok.numpy() & ~(pd_v <= 0)), first[first_free])
         if len(todo):  # the neural result still collides: repair it
             fixed, pd_fix = repaired_meshes(out[todo])
             better = np.nan_to_num(pd_fix, nan=np.inf) < np.nan_to_num(pd_v[todo], nan=np.inf)
             rows = todo[better]
             out[rows], pd_v[rows], stage[rows], repaired[rows] = fixed[better], pd_fix[better], len(margins) + 1, True
-        first = np.flatnonzero(~(pd_in <= 0)) if repair.first else np.zeros(0, np.int64)
-        if len(first):  # repair first: the input repaired, kept wherever it comes out free
-            fixed, pd_fix = repaired_meshes(v_user[torch.as_tensor(first)].numpy())
-            free = np.nan_to_num(pd_fix, nan=np.inf) <= 0
-            rows = first[free]
-            out[rows], pd_v[rows], stage[rows], repaired[rows] = fixed[free], pd_fix[free], len(margins) + 1, True
+        if first_free.any():
+            rows = first[first_free]
+            out[rows], pd_v[rows], stage[rows], repaired[rows] = (first_fixed[first_free], first_pd[first_free],
+                                                                  len(margins) + 1, True)
     if certify is None:
         return MeshResolution(out, decoded.numpy(), z, z_user, pd_in, pd_after, pd_v, stage,
                               res.feasible.numpy(), pd_esc, repaired)
