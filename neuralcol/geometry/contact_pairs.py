@@ -25,14 +25,14 @@ import scipy.sparse as sp
 import torch
 from torch import nn
 
+from neuralcol.geometry.topology import edge_adjacency
+
 N_FEATURES_PER_PAIR = 3
 
 
 def hop_neighbourhood(faces: np.ndarray, n_vertices: int, hops: int) -> sp.csr_matrix:
     """(V, V) boolean CSR: vertices within ``hops`` edges of each other (the diagonal included)."""
-    f = np.asarray(faces, np.int64)
-    a = sp.coo_matrix((np.ones(3 * len(f)), (f.ravel(), np.roll(f, -1, 1).ravel())), shape=(n_vertices,) * 2)
-    a = ((a + a.T + sp.eye(n_vertices)) > 0).astype(np.float32).tocsr()
+    a = edge_adjacency(faces, n_vertices, self_loops=True).astype(np.float32)
     near = a.copy()
     for _ in range(max(0, int(hops) - 1)):
         near = ((near @ a) > 0).astype(np.float32).tocsr()

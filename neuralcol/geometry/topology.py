@@ -196,3 +196,13 @@ def vertex_neighbors(edges: np.ndarray, n_vertices: int) -> np.ndarray:
     table = np.full((n_vertices, k), -1, dtype=np.int64)
     table[both[:, 0], slot] = both[:, 1]
     return table
+
+
+def edge_adjacency(faces: np.ndarray, n_vertices: int, self_loops: bool = False):
+    """(V, V) symmetric 0/1 float64 CSR adjacency of the mesh's edges (with ``self_loops`` the diagonal too)."""
+    import scipy.sparse as sp
+
+    f = np.asarray(faces, np.int64)
+    a = sp.coo_matrix((np.ones(3 * len(f)), (f.ravel(), np.roll(f, -1, 1).ravel())), shape=(n_vertices,) * 2)
+    a = a + a.T + (sp.eye(n_vertices) if self_loops else 0)
+    return (a > 0).astype(np.float64).tocsr()

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from neuralcol.geometry.topology import edge_adjacency
+
 KINDS = ("deep", "local fold", "distant contact")
 
 
@@ -31,19 +33,10 @@ def collision_kind(labeler, vertices, deep_edges: float = 1.0, local_rings: int 
         return "deep"
     f = labeler.faces
     sources, where = np.unique(f[pairs[:, 0]], return_inverse=True)
-    hops = dijkstra(edge_graph(f, labeler.n_vertices), unweighted=True, indices=sources, limit=local_rings + 0.5)
+    hops = dijkstra(edge_adjacency(f, labeler.n_vertices), unweighted=True, indices=sources, limit=local_rings + 0.5)
     # hop distance of each pair: the least over its first triangle's 3 vertices and its second's 3
     d = hops[where.reshape(-1, 3)[:, :, None], f[pairs[:, 1]][:, None, :]].min((1, 2))
     return "local fold" if np.mean(d <= local_rings) >= 0.5 else "distant contact"
-
-
-def edge_graph(faces: np.ndarray, n_vertices: int):
-    """(V, V) sparse adjacency of the mesh's edges."""
-    import scipy.sparse as sp
-
-    f = np.asarray(faces, np.int64)
-    a = sp.coo_matrix((np.ones(3 * len(f)), (f.ravel(), np.roll(f, -1, 1).ravel())), shape=(n_vertices,) * 2)
-    return ((a + a.T) > 0).astype(np.float64).tocsr()
 
 
 def kinds_of(labeler, meshes) -> list[str | None]:

@@ -32,6 +32,8 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
+from neuralcol.geometry.topology import edge_adjacency
+
 
 def outward_sign(faces: np.ndarray, vertices: np.ndarray) -> float:
     """+1 / -1 if the faces of a closed mesh are wound outward / inward (signed volume), 0 for an open mesh."""
@@ -47,9 +49,7 @@ def outward_sign(faces: np.ndarray, vertices: np.ndarray) -> float:
 
 def diffusion_operator(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
     """(V, V) symmetric normalised adjacency with self loops, ``D^-1/2 (A + I) D^-1/2`` (one smoothing step)."""
-    f = np.asarray(faces, np.int64)
-    a = sp.coo_matrix((np.ones(3 * len(f)), (f.ravel(), np.roll(f, -1, 1).ravel())), shape=(n_vertices,) * 2)
-    a = ((a + a.T + sp.eye(n_vertices)) > 0).astype(np.float64)
+    a = edge_adjacency(faces, n_vertices, self_loops=True)
     d = 1.0 / np.sqrt(np.asarray(a.sum(1)).ravel())
     return (sp.diags(d) @ a @ sp.diags(d)).tocsr()
 

@@ -43,6 +43,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
 
+from neuralcol.geometry.topology import edge_adjacency
+
 
 class Untangled(NamedTuple):
     """:func:`untangle` of one mesh: vertices (V, 3) float64; resolved (the labeler finds no pair); iterations used;
@@ -85,9 +87,7 @@ class UntangleSettings:
 def edge_laplacian(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
     """(V, V) graph Laplacian ``D - A`` of the mesh's edges: ``d^T (D - A) d`` = sum over edges of
     ``|d_i - d_j|^2`` (per coordinate)."""
-    f = np.asarray(faces, np.int64)
-    a = sp.coo_matrix((np.ones(3 * len(f)), (f.ravel(), np.roll(f, -1, 1).ravel())), shape=(n_vertices,) * 2)
-    a = ((a + a.T) > 0).astype(np.float64).tocsr()
+    a = edge_adjacency(faces, n_vertices)
     return (sp.diags(np.asarray(a.sum(1)).ravel()) - a).tocsr()
 
 
