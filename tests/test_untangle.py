@@ -114,6 +114,51 @@ def test_untangle_frees_colliding_scape_interpolations(scape):
     assert tried >= 2 and freed >= tried - 1
 
 
+def test_crossing_pairs_are_the_intersecting_pairs(scape):
+    """Penetrations.crossing_pairs (from the crossing records, no second broadphase) equal intersecting_pairs on
+    overlapping spheres, a folded open sheet and colliding SCAPE interpolations; the pass at clearance limit 0
+    (its box shortcut) gives the full label's counted pairs and depths."""
+    rest, faces = _spheres(3.0)
+    lab = ExactLabeler(faces, rest)
+    cases = [(lab, _spheres(1.6)[0]), (lab, _spheres(1.2)[0])]
+    v = scape.vertices.numpy().astype(np.float64)
+    slab = ExactLabeler(scape.faces.numpy(), v[0])
+    cases += [(slab, v[a] + 1.8 * (v[b] - v[a])) for a, b in ((12, 55), (20, 66), (5, 30))]
+    n = 16  # an open sheet rolled over a radius r and back down through itself (a mesh with boundary)
+    x, y = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
+    sheet = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], 1)
+    quads = np.arange(n * n).reshape(n, n)[:-1, :-1].ravel()
+    sheet_faces = np.concatenate([np.stack([quads, quads + 1, quads + n], 1),
+                                  np.stack([quads + 1, quads + n + 1, quads + n], 1)])
+    r, u = 0.05, np.maximum(sheet[:, 0] - 0.5, 0)
+    angle, back = np.minimum(u / r, np.pi), np.maximum(u - np.pi * r, 0)
+    folded = sheet.copy()
+    folded[:, 0] = np.where(u > 0, 0.5 + r * np.sin(angle) - back, sheet[:, 0])
+    folded[:, 2] = r * (1 - np.cos(angle)) - 0.5 * back
+    cases.append((ExactLabeler(sheet_faces, sheet), folded))
+    colliding = 0
+    for labeler, mesh in cases:
+        pen = labeler.penetrations(mesh, 0.3, seed_vectors=False)
+        want = np.unique(np.sort(labeler.intersecting_pairs(mesh), axis=1), axis=0).reshape(-1, 2)
+        np.testing.assert_array_equal(pen.crossing_pairs, want)
+        assert pen.n_pairs == labeler.label(mesh).n_pairs == len(want)
+        np.testing.assert_array_equal(labeler.penetrations(mesh).depth, labeler.vertex_depths(mesh))
+        colliding += pen.n_pairs > 0
+    assert colliding == len(cases)
+
+
+def test_edge_faces_of_a_small_mesh():
+    from neuralcol.geometry.topology import edge_faces, edge_topology
+
+    faces = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 4]])  # a fan: edges 0-2 and 0-3 inside, the rest boundary
+    topo = edge_topology(faces)
+    got = edge_faces(topo.face_edges, len(topo.edges))
+    for e, (i, j) in enumerate(topo.edges):
+        want = sorted(f for f in range(3) if i in faces[f] and j in faces[f])
+        assert sorted(t for t in got[e] if t >= 0) == want
+        assert (got[e] >= 0).sum() == topo.face_count[e]
+
+
 def test_untangle_settings_refuse_bad_values():
     with pytest.raises(ValueError, match="untangle"):
         UntangleSettings(share=0.0)

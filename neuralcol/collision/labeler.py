@@ -63,7 +63,7 @@ from neuralcol.collision.kernels.label_pass import finish_label, label_mesh, ver
 from neuralcol.collision.kernels.pair_terms import near_table
 from neuralcol.collision.kernels.penetration import crossing_seeds, penetration
 from neuralcol.collision.kernels.pruned_pass import far_pass, far_pass_clusters, near_pass
-from neuralcol.geometry.topology import edge_topology, vertex_neighbors
+from neuralcol.geometry.topology import edge_faces, edge_topology, vertex_neighbors
 
 
 class Penetrations(NamedTuple):
@@ -75,11 +75,15 @@ class Penetrations(NamedTuple):
         vector: (V, 3) from each penetrating vertex to the nearest point of its opposing surface (zeros elsewhere;
             on a mesh with boundary or in a local fold: from the nearer end of a crossing edge to the triangle it
             pierces, given to that end).
+        crossing_pairs: (P, 2) int64 sorted rows, the counted triangle pairs (sharing no edge, depth > touch
+            tolerance) with an edge of one through the other among the crossing records (each record's edge gives
+            both its triangles): the intersecting pairs without a second broadphase (the untangle contour step).
     """
 
     n_pairs: int
     depth: np.ndarray
     vector: np.ndarray
+    crossing_pairs: np.ndarray
 
 
 class Label(NamedTuple):
@@ -244,6 +248,7 @@ class ExactLabeler(MeshByMesh):
         self.cap = clearance_cap * self.diag
         self.eps = boundary_eps * self.diag
         self.closed = bool((topo.face_count == 2).all())
+        self._edge_faces = edge_faces(topo.face_edges, len(self.edges))
         tri = rest[self.faces]
         if self.closed:  # outward orientation: positive enclosed volume
             vol = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0
@@ -362,7 +367,20 @@ class ExactLabeler(MeshByMesh):
         seeds, blocked = crossing_seeds(rec_key, rec_int, n_rec, len(self.edges))
         depth, vec = penetration(v, self.faces, seeds, self.adj_ptr, self.adj_idx, self.adj_eid, blocked,
                                  self.closed, 2 if seed_vectors else 1, int(max_region * len(v)))
-        return Penetrations(int(n_pairs), depth, vec)
+        return Penetrations(int(n_pairs), depth, vec, self._record_pairs(v, rec_int[:n_rec]))
+
+    def _record_pairs(self, v: np.ndarray, rec_int: np.ndarray) -> np.ndarray:
+        """:attr:`Penetrations.crossing_pairs` of the crossing records (R, 5)."""
+        both = self._edge_faces[rec_int[:, 0]]  # (R, 2) the triangles of each crossing edge (-1: boundary)
+        t = np.repeat(rec_int[:, 3], 2)
+        s = both.ravel()
+        shared = (self.faces[np.maximum(s, 0)][:, :, None] == self.faces[t][:, None, :]).sum((1, 2))
+        keep = (s >= 0) & (shared < 2)  # as the broadphase: pairs sharing an edge are not candidates
+        pairs = np.sort(np.stack([s[keep], t[keep]], 1), axis=1)
+        if not len(pairs):
+            return np.zeros((0, 2), np.int64)
+        pairs = np.unique(pairs, axis=0)
+        return pairs[pair_depths(v, self.faces, pairs, self.ell) > self.tau]  # counted, as intersecting_pairs
 
     def _passes(self, v, clearance_limit: float):
         """The pruned near and far passes: counted pairs, crossing records, per-part clearances and pair-depth

@@ -42,6 +42,21 @@ def edge_topology(faces: np.ndarray) -> EdgeTopology:
     return EdgeTopology(edges, counts.astype(np.int64), inverse.reshape(-1, 3).astype(np.int64))
 
 
+def edge_faces(face_edges: np.ndarray, n_edges: int) -> np.ndarray:
+    """The triangles of each edge, (E, 2) int64 (-1 where an edge has one), from ``EdgeTopology.face_edges`` (F, 3)
+    of a manifold mesh."""
+    fe = np.asarray(face_edges, dtype=np.int64).ravel()
+    order = np.argsort(fe, kind="stable")
+    tri = order // 3
+    first = np.searchsorted(fe[order], np.arange(n_edges))
+    count = np.bincount(fe, minlength=n_edges)
+    out = np.full((n_edges, 2), -1, dtype=np.int64)
+    out[:, 0] = tri[first]
+    two = count > 1
+    out[two, 1] = tri[first[two] + 1]
+    return out
+
+
 def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Triangle areas.
 

@@ -53,6 +53,8 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
         t_all = min(clear.max(), cap)  # no term >= this can lower any clearance (they only fall)
         for idx in range(near_ptr[a], near_ptr[a + 1]):
             b = near_b[idx]
+            if t_all <= 0.0 and not boxes_overlap(lo0, hi0, a, b):
+                continue  # not counted, and no term can lower a clearance that is 0 everywhere (limit 0)
             if not boxes_overlap(lo_cap, hi_cap, a, b):
                 continue  # not a candidate of the reference
             overlap = boxes_overlap(lo0, hi0, a, b)
