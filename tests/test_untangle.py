@@ -55,6 +55,23 @@ def test_contour_gradient_matches_finite_differences():
     assert contour_gradient(v, faces, np.zeros((0, 2), np.int64))[1] == 0.0
 
 
+def test_contour_of_a_pair_sharing_a_vertex():
+    """Two triangles sharing vertex 0 and crossing: no edge from the shared vertex crosses, so the segment runs from
+    it to the one crossing point (the length the shared vertex adds, with its finite-difference gradient)."""
+    v = np.array([[0.0, 0, 0], [2, -1, 0], [2, 1, 0], [1, 0, -1], [1, 0, 1]])  # triangle 0-1-2 in z = 0, 0-3-4
+    faces = np.array([[0, 1, 2], [0, 3, 4]])  # in y = 0 through it: their segment is x in [0, 1] on the x axis
+    grad, length = contour_gradient(v, faces, np.array([[0, 1]]))
+    assert length == pytest.approx(1.0, rel=1e-12)
+    h = 1e-7
+    for i in range(5):
+        for d in range(3):
+            e = np.zeros_like(v)
+            e[i, d] = h
+            fd = (contour_gradient(v + e, faces, [[0, 1]])[1] - contour_gradient(v - e, faces, [[0, 1]])[1]) / (2 * h)
+            assert fd == pytest.approx(grad[i, d], abs=1e-6)
+    assert np.abs(grad).sum() > 0
+
+
 @pytest.mark.parametrize("offset", [1.9, 1.2])
 def test_untangle_separates_overlapping_spheres(offset):
     """Shallow (0.1) and deep (0.8 of a radius) overlaps come out free; the far sides barely move."""

@@ -133,7 +133,8 @@ def _crossings(p, q, a, b, c):
 
 def contour_gradient(vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, float]:
     """Gradient (V, 3) of the total length of the intersection segments of ``pairs`` (P, 2) with respect to the
-    vertices, and that length. A pair's segment joins the two farthest of its edge/triangle crossing points."""
+    vertices, and that length. A pair's segment joins the two farthest of its edge/triangle crossing points and,
+    for a pair sharing a vertex, that vertex."""
     v = torch.tensor(np.asarray(vertices, np.float64), requires_grad=True)
     f = torch.as_tensor(np.asarray(faces, np.int64))
     pairs = torch.as_tensor(np.asarray(pairs, np.int64)).reshape(-1, 2)
@@ -146,7 +147,12 @@ def contour_gradient(vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarray)
             x, ok = _crossings(t[:, i], t[:, (i + 1) % 3], u[:, 0], u[:, 1], u[:, 2])
             pts.append(x)
             oks.append(ok)
-    x, ok = torch.stack(pts, 1), torch.stack(oks, 1)  # (P, 6, 3), (P, 6)
+    fa, fb = f[pairs[:, 0]], f[pairs[:, 1]]
+    eq = fa[:, :, None] == fb[:, None, :]  # (P, 3, 3): a pair sharing a vertex (not an edge) meets the other
+    shared = fa.gather(1, eq.any(2).int().argmax(1, keepdim=True))[:, 0]  # triangle's plane there: its segment
+    pts.append(v[shared])  # runs from that vertex to one crossing point (no edge from the vertex crosses)
+    oks.append(eq.any((1, 2)))
+    x, ok = torch.stack(pts, 1), torch.stack(oks, 1)  # (P, 7, 3), (P, 7)
     dist = torch.cdist(x, x)
     dist = torch.where(ok[:, :, None] & ok[:, None, :], dist, torch.zeros_like(dist))
     length = dist.flatten(1).max(1).values.sum()
