@@ -161,8 +161,9 @@ class RepairSettings:
     max_iter: int = 60
     max_step: float = 0.002     # no vertex moves more than this fraction of the diagonal per iteration
     first: bool = True          # resolve: repair the input first, the neural handler only for what it leaves
-    method: str = "contact"     # contact: this module's push; untangle: region push + contour minimisation;
-                                # contact_untangle: the push, and untangle (from the input) where it fails
+    method: str = "contact_untangle"  # contact: this module's push; untangle: region push + contour
+                                # minimisation; contact_untangle (default, issue 43 rule v2): the push, and untangle
+                                # (from the input) where it fails
     untangle: dict | None = None  # settings of neuralcol.handler.untangle.UntangleSettings (None: its defaults)
 
     def __post_init__(self):
