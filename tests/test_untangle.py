@@ -176,9 +176,24 @@ def test_edge_faces_of_a_small_mesh():
         assert (got[e] >= 0).sum() == topo.face_count[e]
 
 
+def test_untangle_goes_on_only_while_the_pairs_still_fall():
+    """Past max_iter, still_falling: on while the fewest pairs of the last window is below progress x the fewest
+    before it, never past max_iter + extra_iter; extra_iter 0 stops at max_iter."""
+    from neuralcol.handler.untangle import still_falling
+
+    s = UntangleSettings(max_iter=4, extra_iter=6, window=2, progress=0.9)
+    assert still_falling([100, 90, 80, 70, 60], s)  # last two (70, 60) below 0.9 x 80
+    assert not still_falling([100, 90, 80, 79, 78], s)  # 78 > 0.9 x 80: hovering
+    assert not still_falling(list(range(100, 89, -1)), s)  # 10 iterations done: extra_iter spent
+    assert not still_falling([100, 90, 80, 70, 60], UntangleSettings(max_iter=4, extra_iter=0))
+    assert not still_falling([5, 4], s)  # no history before the window
+
+
 def test_untangle_settings_refuse_bad_values():
     with pytest.raises(ValueError, match="untangle"):
         UntangleSettings(share=0.0)
+    with pytest.raises(ValueError, match="extra_iter >= 0"):
+        UntangleSettings(extra_iter=-1)
     with pytest.raises(ValueError, match="contour_min <= contour_step <= contour_max"):
         UntangleSettings(contour_step=2.0)
     with pytest.raises(ValueError, match="vertices have shape"):

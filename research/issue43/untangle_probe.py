@@ -36,7 +36,8 @@ def main() -> None:
     lo, _, hi = sys.argv[2].rpartition(":")
     lo, hi = int(lo or 0), int(hi)
     args = [a for a in sys.argv[3:] if a != "--untangle-only"]
-    kw = {k: int(v) if k in ("max_iter", "extra_iter", "window") else float(v) for k, v in (a.split("=", 1) for a in args)}
+    ints = ("max_iter", "extra_iter", "window")
+    kw = {k: int(v) if k in ints else float(v) for k, v in (a.split("=", 1) for a in args)}
     lab, faces = run.labeler, run.faces
     data = realistic_set(run)
     pick = np.flatnonzero(data["pd"] > 0)[lo:hi]
