@@ -85,8 +85,8 @@ class UntangleSettings:
                 and self.extra_iter >= 0 and self.window >= 1 and 0 < self.progress <= 1):
             raise ValueError(f"handler.repair (untangle): need 0 < share <= 1, delta >= 0, 0 < contour_min <= "
                              f"contour_step <= contour_max, contour_grow >= 1, 0 < contour_shrink <= 1, min_push >= 0, "
-                             f"hold > 0, stiffness >= 0, anchor > 0, 0 < max_region <= 1, max_iter >= 0, extra_iter >= 0, "
-                             f"window >= 1, 0 < progress <= 1; got {self}")
+                             f"hold > 0, stiffness >= 0, anchor > 0, 0 < max_region <= 1, max_iter >= 0, "
+                             f"extra_iter >= 0, window >= 1, 0 < progress <= 1; got {self}")
 
 
 def edge_laplacian(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:

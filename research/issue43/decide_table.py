@@ -2,6 +2,7 @@
 runs' ``realistic_{contact,untangle}_stop51.json`` (``outputs/issue43/decide_queue.sh``):
 
     PYTHONPATH=. python research/issue43/decide_table.py RUN_DIR [RUN_DIR ...] [--tag stop51] [--candidate M]
+        [--contact-tag T]
 
 Prints per run: verified collision-free rate, the repair alone, the median over meshes of the per-mesh median
 displacement, the 95th percentile and the median of the per-mesh largest (fractions of the diagonal), the handling
@@ -19,6 +20,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--tag", default="stop51")
+    ap.add_argument("--contact-tag", help="the contact repair's runs under another tag (default: --tag)")
     ap.add_argument("--candidate", default="untangle", help="the method judged against contact (rule v2: "
                     "contact_untangle)")
     a = ap.parse_args()
@@ -27,8 +29,8 @@ def main() -> None:
           "| handling s | by kind, candidate (freed/n) |")
     print("|---|---|---|---|---|---|---|---|")
     for run in a.runs:
-        h = {m: json.loads((run / f"realistic_{m}_{a.tag}.json").read_text())["handling"]
-             for m in ("contact", a.candidate)}
+        tags = {"contact": a.contact_tag or a.tag, a.candidate: a.tag}
+        h = {m: json.loads((run / f"realistic_{m}_{t}.json").read_text())["handling"] for m, t in tags.items()}
         c, u = h["contact"], h[a.candidate]
         fc, fu = c["verified"]["resolved_rate"], u["verified"]["resolved_rate"]
         never_lower &= fu >= fc
