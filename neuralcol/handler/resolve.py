@@ -326,10 +326,10 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
 
         # repair first: the input repaired, kept wherever it comes out free (so the neural result of those rows is
         # not repaired: that mesh would be replaced; the same outputs, less work)
-        first = np.flatnonzero(~(pd_in <= 0)) if repair.first else np.zeros(0, np.int64)
-        first_fixed, first_pd = (repaired_meshes(v_user[torch.as_tensor(first)].numpy()) if len(first)
-                                 else (None, np.zeros(0)))
-        first_free = np.nan_to_num(first_pd, nan=np.inf) <= 0
+        first, first_free = np.zeros(0, np.int64), np.zeros(0, bool)
+        if repair.first:
+            first, first_fixed, first_pd, first_free = _repaired_inputs(space, v_user, pd_in, label, repair, labeler,
+                                                                        progress)
         todo = np.setdiff1d(np.flatnonzero(ok.numpy() & ~(pd_v <= 0)), first[first_free])
         if len(todo):  # the neural result still collides: repair it
             fixed, pd_fix = repaired_meshes(out[todo])
@@ -349,6 +349,15 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
                           decide.exact_share)
 
 
+def _repaired_inputs(space, v_user: torch.Tensor, pd_in: np.ndarray, label, repair, labeler, progress: bool):
+    """Repair first: the colliding inputs' rows, their repaired meshes, exact PDs, and which came out free."""
+    first = np.flatnonzero(~(pd_in <= 0))
+    if not len(first):
+        return first, None, np.zeros(0), np.zeros(0, bool)
+    fixed, pd_fix = _repaired(space, v_user[torch.as_tensor(first)].numpy(), label, repair, labeler, progress)
+    return first, fixed, pd_fix, np.nan_to_num(pd_fix, nan=np.inf) <= 0
+
+
 def _repaired(space, meshes: np.ndarray, label, repair, labeler, progress: bool) -> tuple[np.ndarray, np.ndarray]:
     """The repair (``repair.method``) of meshes (n, V, 3) and their exact PD."""
     from neuralcol.handler.contact_repair import outward_sign, repair_meshes
@@ -366,9 +375,7 @@ def _repair_first_then_rest(net, space, v_user, label, settings, margins, batch_
     """:func:`resolve_meshes` with ``skip_freed``: the colliding inputs repaired first; those it frees are done,
     the others (and the free inputs) take the whole path with ``repair.first`` off."""
     n = len(v_user)
-    first = np.flatnonzero(~(pd_in <= 0))
-    fixed, pd_fix = _repaired(space, v_user[torch.as_tensor(first)].numpy(), label, repair, labeler, progress)
-    ok = np.nan_to_num(pd_fix, nan=np.inf) <= 0
+    first, fixed, pd_fix, ok = _repaired_inputs(space, v_user, pd_in, label, repair, labeler, progress)
     freed, rows = first[ok], np.setdiff1d(np.arange(n), first[ok])
 
     def sub_objective(z: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:

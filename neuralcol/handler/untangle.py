@@ -73,8 +73,8 @@ class UntangleSettings:
     anchor: float = 0.05  # weight of |d|^2: what no target reaches stays put (falloff ~ sqrt(stiffness / anchor))
     max_region: float = 0.3  # a flood-filled region with more of the vertices is the outside of an open curve
     max_iter: int = 80
-    extra_iter: int = 160  # past max_iter, go on while the fewest pairs of the last `window` iterations is below
-    window: int = 40       # `progress` x the fewest before them (0: stop at max_iter)
+    extra_iter: int = 160  # past max_iter, go on (0: never) while the fewest pairs of the last `window`
+    window: int = 40       # iterations is below `progress` x the fewest before them
     progress: float = 0.9
 
     def __post_init__(self):
