@@ -238,6 +238,32 @@ def test_resolve_repair_first(trained, monkeypatch):
     assert np.isfinite(res.pd_after).all()
 
 
+def test_resolve_shrinks_the_neural_correction(trained, monkeypatch):
+    """handler.repair.shrink_steps: where the neural path frees an input, the correction is shrunk to the smallest
+    share from which the repair still frees it; kept only where it moves less, free by the exact label."""
+    from omegaconf import OmegaConf
+
+    z = _codes(trained, 200, 7)
+    verts = trained.decode(z)
+    verts = verts[torch.as_tensor(np.flatnonzero(trained.label(verts).collides)[:6])].double()
+    cfg = OmegaConf.create(OmegaConf.to_container(trained.cfg))
+    cfg.handler.repair.first = False  # every input takes the neural path
+    monkeypatch.setattr(trained, "cfg", cfg)
+    plain = trained.resolve(verts, margins=[4.0])
+    assert np.isnan(plain.shrink).all()  # off by default
+    cfg.handler.repair.shrink_steps = 4
+    res = trained.resolve(verts, margins=[4.0])
+    tried = np.isfinite(res.shrink)
+    np.testing.assert_array_equal(tried, (plain.pd_after <= 0) & (plain.pd_input > 0))
+    shrunk = tried & (res.shrink < 1)
+    assert shrunk.any()  # deterministic: the tiny run frees these inputs with more than it needs
+    assert (res.displacement_max[shrunk] < plain.displacement_max[shrunk]).all()
+    assert (res.pd_after[shrunk] <= 0).all() and res.repaired[shrunk].all()
+    np.testing.assert_array_equal(res.pd_after, trained.label(res.vertices).pd)
+    same = torch.as_tensor(~shrunk)
+    np.testing.assert_array_equal(res.vertices[same].cpu().numpy(), plain.vertices[same].cpu().numpy())
+
+
 def test_load_run_errors_name_what_is_missing(run_dir, tmp_path):
     import neuralcol
 

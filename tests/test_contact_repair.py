@@ -130,3 +130,58 @@ def test_settings_and_batch():
                                  outward_sign(f, rest))
     assert ok.tolist() == [True, True] and its[1] == 0 and np.array_equal(out[1], rest)
     assert not lab.label(out[0]).collides
+
+
+def test_shrink_corrections_bisects_to_the_smallest_freeing_share():
+    """Analytic: the repair (identity here) frees mesh k exactly when its share of the correction is >= t_k."""
+    from neuralcol.handler.resolve import shrink_corrections
+
+    t = np.array([0.3, 0.9, 0.05])
+    x = np.zeros((3, 4, 3))
+    result = np.ones((3, 4, 3))
+    calls = []
+
+    def repaired(m):
+        calls.append(len(m))
+        share = m[:, 0, 0]  # x + s * (result - x) = s everywhere
+        return m, np.where(share >= t, -1.0, 0.5)
+
+    kept, pd, s = shrink_corrections(x, result, repaired, steps=5)
+    assert calls == [3] * 5  # one batched repair per step
+    assert (s >= t).all() and (s - t < 1 / 32 + 1e-12).all()
+    np.testing.assert_allclose(kept, s[:, None, None] * result)
+    assert (pd == -1.0).all()
+    # a repair that moves more than the whole correction is not kept; nothing is tried without steps
+    kept, pd, s = shrink_corrections(x, result, lambda m: (m + 5.0, np.full(len(m), -1.0)), steps=3)
+    np.testing.assert_array_equal(kept, result)
+    assert (s == 1.0).all() and np.isnan(pd).all()
+    kept, pd, s = shrink_corrections(x, result, repaired, steps=0)
+    assert (s == 1.0).all() and np.array_equal(kept, result)
+    with pytest.raises(ValueError, match="shrink_steps"):
+        RepairSettings(shrink_steps=-1)
+
+
+def test_shrink_corrections_on_two_spheres():
+    """Two spheres pushed deep into each other, the 'correction' moving one of them far away: a fraction of it
+    and the contact repair free them, moving far less; the last share bisection rejected does not."""
+    from neuralcol.handler.resolve import shrink_corrections
+
+    v, f, rest = two_spheres(0.3)
+    lab = ExactLabeler(f, rest)
+    diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
+    settings = RepairSettings(method="contact", smooth_steps=4, max_iter=5)  # too few iterations for the input
+    n = len(v) // 2
+    result = v.copy()
+    result[n:, 0] += 1.0  # far apart: free
+    assert lab.label(v).collides and not lab.label(result).collides
+
+    def repaired(m):
+        out, _, _ = repair_meshes(m, f, lab, settings, lab.eps, diag, outward_sign(f, rest))
+        return out, np.array([lab.label(o).pd for o in out])
+
+    assert repaired(v[None])[1][0] > 0
+    kept, pd, s = shrink_corrections(v[None], result[None], repaired, steps=5)
+    assert 1 / 32 < s[0] < 1 and pd[0] <= 0 and not lab.label(kept[0]).collides
+    assert np.linalg.norm(kept[0] - v, axis=1).max() < 0.5
+    _, pd_lo = repaired((v + (s[0] - 1 / 32) * (result - v))[None])
+    assert pd_lo[0] > 0

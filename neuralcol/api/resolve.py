@@ -168,7 +168,8 @@ class ResolveMixin:
                             margin=used_margins[res.stage], displacement_mean=moved["mean"],
                             displacement_max=moved["max"], displacement_median=moved["median"], diagonal=diag,
                             decoded=torch.as_tensor(res.decoded, dtype=torch.float32, device=self.device),
-                            repaired=res.repaired, exact=res.exact, free=res.free, exact_share=res.exact_share)
+                            repaired=res.repaired, exact=res.exact, free=res.free, exact_share=res.exact_share,
+                            shrink=res.shrink)
 
         def handle(rows: np.ndarray, margin: float):
             idx_map = torch.as_tensor(rows, device=self.device)

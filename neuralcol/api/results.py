@@ -72,6 +72,9 @@ class Resolved(NamedTuple):
     (``pd_after`` is NaN where the detector was trusted instead); free (N,) bool: the certified cascade calls the
     returned result collision-free (exact PD <= 0, or the detector's logit below the band); exact_share: exact labels
     per verification decision (the full verification labels every result: 1.0).
+    shrink (N,) or None: the share of the neural path's correction the returned mesh was repaired from
+    (``handler.repair.shrink_steps``; NaN where not tried, 1 where the full correction was kept); None without a
+    repair or for code inputs.
     """
 
     vertices: torch.Tensor
@@ -90,4 +93,5 @@ class Resolved(NamedTuple):
     exact: np.ndarray | None = None
     free: np.ndarray | None = None
     exact_share: float | None = None
+    shrink: np.ndarray | None = None
 

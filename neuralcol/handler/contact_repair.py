@@ -165,11 +165,14 @@ class RepairSettings:
                                 # minimisation; contact_untangle (default, issue 43 rule v2): the push, and untangle
                                 # (from the input) where it fails
     untangle: dict | None = None  # settings of neuralcol.handler.untangle.UntangleSettings (None: its defaults)
+    shrink_steps: int = 0       # resolve: bisection steps shrinking the neural path's correction (0: off)
 
     def __post_init__(self):
         if self.delta <= 0 or self.smooth_steps < 0 or self.max_iter < 0 or self.max_step <= 0:
             raise ValueError(f"handler.repair {self}: need delta > 0, smooth_steps >= 0, max_iter >= 0, "
                              "max_step > 0")
+        if self.shrink_steps < 0:
+            raise ValueError(f"handler.repair.shrink_steps={self.shrink_steps}; use 0 (off) or a number of steps")
         if self.method not in REPAIR_METHODS:
             raise ValueError(f"handler.repair.method={self.method!r}; use one of {', '.join(REPAIR_METHODS)}")
 

@@ -210,6 +210,8 @@ class MeshResolution(NamedTuple):
     With ``certify`` (else None): exact (N,) bool: the verdict on the returned mesh is the exact labeler's (the
     PDs are NaN where the detector was trusted instead); free (N,) bool: the cascade calls it collision-free;
     exact_share: exact labels per verification decision.
+    shrink (N,) float or None (no repair): the scale s of the neural path's correction the kept mesh was repaired
+    from (``repair.shrink_steps``, :func:`shrink_corrections`); NaN where not tried, 1 where tried and not kept.
     """
 
     vertices: np.ndarray
@@ -226,6 +228,43 @@ class MeshResolution(NamedTuple):
     exact: np.ndarray | None = None
     free: np.ndarray | None = None
     exact_share: float | None = None
+    shrink: np.ndarray | None = None
+
+
+def shrink_corrections(x: np.ndarray, result: np.ndarray,
+                       repaired: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+                       steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The smallest fraction of each correction from which the repair still frees the mesh (issue 43).
+
+    For inputs ``x`` (n, V, 3) and their free results ``result`` (n, V, 3), the correction ``D = result - x`` is
+    scaled by s and ``repaired(x + s D)`` tried; bisection over ``steps`` steps (one batched repair per step) finds
+    the smallest s in (0, 1] from which the repaired mesh comes out free. That mesh replaces the result where its
+    largest vertex displacement from ``x`` is smaller.
+
+    Args:
+        repaired: meshes (m, V, 3) -> (repaired meshes (m, V, 3), exact PD (m,); NaN where the labeler failed).
+
+    Returns:
+        (meshes (n, V, 3): the kept ones, pd (n,): their exact PD where shrunk, NaN where the result was kept,
+        s (n,): the kept scale, 1.0 where the result was kept).
+    """
+    x, result = np.asarray(x, np.float64), np.asarray(result, np.float64)
+    d = result - x
+    lo, hi = np.zeros(len(x)), np.ones(len(x))
+    best, best_pd = result.copy(), np.full(len(x), np.nan)
+    for _ in range(steps if len(x) else 0):
+        s = 0.5 * (lo + hi)
+        fixed, pd = repaired(x + s[:, None, None] * d)
+        free = np.nan_to_num(pd, nan=np.inf) <= 0
+        hi[free], best[free], best_pd[free] = s[free], fixed[free], pd[free]
+        lo[~free] = s[~free]
+
+    def largest(m: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(m - x, axis=-1).max(-1) if len(m) else np.zeros(0)
+
+    keep = largest(best) < largest(result)
+    return (np.where(keep[:, None, None], best, result), np.where(keep, best_pd, np.nan),
+            np.where(keep, hi, 1.0))
 
 
 def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
@@ -340,13 +379,25 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
             rows = first[first_free]
             out[rows], pd_v[rows], stage[rows], repaired[rows] = (first_fixed[first_free], first_pd[first_free],
                                                                   len(margins) + 1, True)
+        shrink = np.full(n, np.nan)
+        # the inputs the repair alone leaves and the neural path frees (by the exact label): the smallest share of
+        # the correction from which the repair still frees them
+        rows = np.setdiff1d(np.flatnonzero(~(pd_in <= 0) & (pd_v <= 0) & np.isfinite(pd_v)), first[first_free])
+        if repair.shrink_steps and len(rows):
+            kept, pd_s, shrink[rows] = shrink_corrections(v_user[torch.as_tensor(rows)].numpy(), out[rows],
+                                                          repaired_meshes, repair.shrink_steps)
+            moved = shrink[rows] < 1
+            out[rows], pd_v[rows[moved]], repaired[rows[moved]] = kept, pd_s[moved], True
+            stage[rows[moved]] = len(margins) + 1
+    else:
+        shrink = None
     if certify is None:
         return MeshResolution(out, decoded.numpy(), z, z_user, pd_in, pd_after, pd_v, stage,
-                              res.feasible.numpy(), pd_esc, repaired)
+                              res.feasible.numpy(), pd_esc, repaired, shrink=shrink)
     pd_v, exact, free = certified_outcome(pd_v)
     return MeshResolution(out, decoded.numpy(), z, z_user, pd_in, certified_outcome(pd_after)[0], pd_v, stage,
                           res.feasible.numpy(), certified_outcome(pd_esc)[0], repaired, exact, free,
-                          decide.exact_share)
+                          decide.exact_share, shrink)
 
 
 def _repaired_inputs(space, v_user: torch.Tensor, pd_in: np.ndarray, label, repair, labeler, progress: bool):
@@ -394,6 +445,7 @@ def _repair_first_then_rest(net, space, v_user, label, settings, margins, batch_
     stage, feasible, repaired = np.zeros(n, np.int64), np.zeros(n, bool), np.zeros(n, bool)
     out[freed], pd_v[freed], stage[freed], repaired[freed] = fixed[ok], pd_fix[ok], len(margins) + 1, True
     exact = free = share = None
+    shrink = np.full(n, np.nan)
     if certify is not None:
         exact, free = np.zeros(n, bool), np.zeros(n, bool)
         exact[freed] = free[freed] = True
@@ -402,7 +454,8 @@ def _repair_first_then_rest(net, space, v_user, label, settings, margins, batch_
         out[rows], decoded[rows], codes[r] = sub.vertices, sub.decoded, sub.codes.float()
         pd_det[rows], pd_v[rows], pd_esc[rows] = sub.pd_after_detector, sub.pd_after, sub.pd_after_escalation
         stage[rows], feasible[rows], repaired[rows] = sub.stage, sub.feasible, sub.repaired
+        shrink[rows] = sub.shrink
         if certify is not None:
             exact[rows], free[rows], share = sub.exact, sub.free, sub.exact_share
     return MeshResolution(out, decoded, codes, z_user, pd_in, pd_det, pd_v, stage, feasible, pd_esc, repaired,
-                          exact, free, share)
+                          exact, free, share, shrink)

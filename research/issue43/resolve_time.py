@@ -2,6 +2,7 @@
 side by side: share freed (exact label), median / p95-largest displacement, seconds per mesh.
 
     PYTHONPATH=. python research/issue43/resolve_time.py RUN_DIR [A:]B [--methods contact untangle] [--out F.json]
+        [--set handler.repair.shrink_steps=5 ...]   (config keys set on the loaded run first)
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import json
 import time
 
 import numpy as np
+import yaml
 from omegaconf import OmegaConf
 
 import neuralcol
@@ -23,14 +25,18 @@ def main() -> None:
     ap.add_argument("rows")
     ap.add_argument("--methods", nargs="+", default=["contact", "untangle"])
     ap.add_argument("--out")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     a = ap.parse_args()
     lo, _, hi = a.rows.rpartition(":")
     run = neuralcol.load_run(a.run_dir)
+    for kv in a.set:
+        key, _, value = kv.partition("=")
+        OmegaConf.update(run.cfg, key, yaml.safe_load(value), force_add=True)
     data = realistic_set(run)
     pick = np.flatnonzero(data["pd"] > 0)[int(lo or 0):int(hi)]
     meshes = data["vertices"][pick]
     run.resolve(meshes[:1])  # warm up (pool, compiled kernels)
-    report = {"run": a.run_dir, "rows": a.rows, "n": len(meshes)}
+    report = {"run": a.run_dir, "rows": a.rows, "n": len(meshes), "set": a.set}
     for method in a.methods:
         OmegaConf.update(run.cfg, "handler.repair.method", method)
         t = time.perf_counter()
