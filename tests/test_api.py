@@ -264,6 +264,35 @@ def test_resolve_shrinks_the_neural_correction(trained, monkeypatch):
     np.testing.assert_array_equal(res.vertices[same].cpu().numpy(), plain.vertices[same].cpu().numpy())
 
 
+def test_resolve_caps_the_displacement(trained, monkeypatch):
+    """handler.repair.cap_steps: every colliding input returned free has its vertex moves clipped at the smallest cap
+    the exact label still calls free; never a larger move, free by the exact label, the rest unchanged."""
+    from omegaconf import OmegaConf
+
+    z = _codes(trained, 200, 7)
+    verts = trained.decode(z)
+    verts = verts[torch.as_tensor(np.flatnonzero(trained.label(verts).collides)[:6])].double()
+    cfg = OmegaConf.create(OmegaConf.to_container(trained.cfg))
+    monkeypatch.setattr(trained, "cfg", cfg)
+    for first in (True, False):  # the repair-first path and the neural one
+        cfg.handler.repair.first = first
+        cfg.handler.repair.cap_steps = 0
+        plain = trained.resolve(verts, margins=[4.0])
+        assert np.isnan(plain.cap).all()
+        cfg.handler.repair.cap_steps = 5
+        res = trained.resolve(verts, margins=[4.0])
+        np.testing.assert_array_equal(np.isfinite(res.cap), plain.pd_after <= 0)
+        clipped = res.cap < 1
+        assert clipped.any()  # deterministic: the tiny run's results move more than they need somewhere
+        assert (res.displacement_max[clipped] < plain.displacement_max[clipped]).all()
+        np.testing.assert_allclose(res.displacement_max[clipped],
+                                   res.cap[clipped] * plain.displacement_max[clipped], rtol=1e-9)
+        np.testing.assert_array_equal(res.pd_after, trained.label(res.vertices).pd)
+        assert (res.pd_after[clipped] <= 0).all()
+        same = torch.as_tensor(~clipped)
+        np.testing.assert_array_equal(res.vertices[same].cpu().numpy(), plain.vertices[same].cpu().numpy())
+
+
 def test_load_run_errors_name_what_is_missing(run_dir, tmp_path):
     import neuralcol
 

@@ -185,3 +185,35 @@ def test_shrink_corrections_on_two_spheres():
     assert np.linalg.norm(kept[0] - v, axis=1).max() < 0.5
     _, pd_lo = repaired((v + (s[0] - 1 / 32) * (result - v))[None])
     assert pd_lo[0] > 0
+
+
+def test_cap_displacements_clips_the_largest_moves_to_the_smallest_free_cap():
+    """Analytic: moves 1, 2, 4 along x; the label frees the mesh when vertex 0 moved >= 0.8, i.e. cap c >= 0.2."""
+    from neuralcol.handler.resolve import cap_displacements
+
+    x = np.zeros((2, 3, 3))
+    result = np.zeros((2, 3, 3))
+    result[:, :, 0] = [1.0, 2.0, 4.0]
+    need = np.array([0.8, 5.0])  # the second is never free below the full result
+
+    def label(m):
+        return np.where(m[:, 0, 0] >= need - 1e-12, -1.0, 0.3)
+
+    kept, pd, c = cap_displacements(x, result, label, steps=6)
+    assert 0.2 <= c[0] < 0.2 + 1 / 64 and pd[0] == -1.0
+    np.testing.assert_allclose(kept[0, :, 0], np.minimum([1.0, 2.0, 4.0], 4 * c[0]))
+    np.testing.assert_array_equal(kept[0, :, 1:], 0.0)
+    assert c[1] == 1.0 and np.isnan(pd[1]) and np.array_equal(kept[1], result[1])
+    kept, pd, c = cap_displacements(x, result, label, steps=0)
+    assert (c == 1.0).all() and np.array_equal(kept, result)
+    with pytest.raises(ValueError, match="cap_steps"):
+        RepairSettings(cap_steps=-2)
+
+
+def test_edge_strain():
+    from neuralcol.handler.resolve import edge_strain
+
+    v, f, _ = two_spheres(0.0, subdivisions=1)
+    np.testing.assert_allclose(edge_strain(v[None], 1.1 * v[None], f), [0.1])
+    w = v + 0.3  # a translation strains nothing
+    assert edge_strain(v[None], w[None], f)[0] < 1e-12

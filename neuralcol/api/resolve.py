@@ -169,7 +169,7 @@ class ResolveMixin:
                             displacement_max=moved["max"], displacement_median=moved["median"], diagonal=diag,
                             decoded=torch.as_tensor(res.decoded, dtype=torch.float32, device=self.device),
                             repaired=res.repaired, exact=res.exact, free=res.free, exact_share=res.exact_share,
-                            shrink=res.shrink)
+                            shrink=res.shrink, cap=res.cap)
 
         def handle(rows: np.ndarray, margin: float):
             idx_map = torch.as_tensor(rows, device=self.device)

@@ -75,6 +75,8 @@ class Resolved(NamedTuple):
     shrink (N,) or None: the share of the neural path's correction the returned mesh was repaired from
     (``handler.repair.shrink_steps``; NaN where not tried, 1 where the full correction was kept); None without a
     repair or for code inputs.
+    cap (N,) or None: the cap on the returned mesh's vertex moves, a fraction of the largest move before it
+    (``handler.repair.cap_steps``; NaN where not tried, 1 where not clipped); None as ``shrink``.
     """
 
     vertices: torch.Tensor
@@ -94,4 +96,5 @@ class Resolved(NamedTuple):
     free: np.ndarray | None = None
     exact_share: float | None = None
     shrink: np.ndarray | None = None
+    cap: np.ndarray | None = None
 

@@ -166,13 +166,15 @@ class RepairSettings:
                                 # (from the input) where it fails
     untangle: dict | None = None  # settings of neuralcol.handler.untangle.UntangleSettings (None: its defaults)
     shrink_steps: int = 0       # resolve: bisection steps shrinking the neural path's correction (0: off)
+    cap_steps: int = 0          # resolve: bisection steps capping a freed result's displacement (0: off)
 
     def __post_init__(self):
         if self.delta <= 0 or self.smooth_steps < 0 or self.max_iter < 0 or self.max_step <= 0:
             raise ValueError(f"handler.repair {self}: need delta > 0, smooth_steps >= 0, max_iter >= 0, "
                              "max_step > 0")
-        if self.shrink_steps < 0:
-            raise ValueError(f"handler.repair.shrink_steps={self.shrink_steps}; use 0 (off) or a number of steps")
+        for key in ("shrink_steps", "cap_steps"):
+            if getattr(self, key) < 0:
+                raise ValueError(f"handler.repair.{key}={getattr(self, key)}; use 0 (off) or a number of steps")
         if self.method not in REPAIR_METHODS:
             raise ValueError(f"handler.repair.method={self.method!r}; use one of {', '.join(REPAIR_METHODS)}")
 

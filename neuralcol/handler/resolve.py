@@ -212,6 +212,8 @@ class MeshResolution(NamedTuple):
     exact_share: exact labels per verification decision.
     shrink (N,) float or None (no repair): the scale s of the neural path's correction the kept mesh was repaired
     from (``repair.shrink_steps``, :func:`shrink_corrections`); NaN where not tried, 1 where tried and not kept.
+    cap (N,) float or None (no repair): the cap on the displacement, a fraction of its largest, that the returned
+    mesh was clipped to (``repair.cap_steps``, :func:`cap_displacements`); NaN where not tried, 1 where not clipped.
     """
 
     vertices: np.ndarray
@@ -229,6 +231,7 @@ class MeshResolution(NamedTuple):
     free: np.ndarray | None = None
     exact_share: float | None = None
     shrink: np.ndarray | None = None
+    cap: np.ndarray | None = None
 
 
 def shrink_corrections(x: np.ndarray, result: np.ndarray,
@@ -265,6 +268,52 @@ def shrink_corrections(x: np.ndarray, result: np.ndarray,
     keep = largest(best) < largest(result)
     return (np.where(keep[:, None, None], best, result), np.where(keep, best_pd, np.nan),
             np.where(keep, hi, 1.0))
+
+
+def cap_displacements(x: np.ndarray, result: np.ndarray, label: Callable[[np.ndarray], np.ndarray],
+                      steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The smallest cap on each result's vertex displacements that leaves it collision-free (issue 43).
+
+    With ``d = result - x`` and ``m`` its largest vertex displacement, the capped mesh is
+    ``x + d_i min(1, c m / |d_i|)`` (each vertex's move keeps its direction, its length clipped at ``c m``: a
+    continuous field); bisection over ``steps`` steps (one batched label per step) finds the smallest ``c`` in (0, 1]
+    at which the exact label calls it free.
+
+    Args:
+        label: meshes (m, V, 3) -> exact PD (m,) (NaN where the labeler failed).
+
+    Returns:
+        (meshes (n, V, 3), pd (n,): the capped mesh's exact PD, NaN where the result was kept, c (n,): 1.0 where kept).
+    """
+    x, result = np.asarray(x, np.float64), np.asarray(result, np.float64)
+    d = result - x
+    norm = np.linalg.norm(d, axis=-1, keepdims=True)  # (n, V, 1)
+    top = norm.max(1, keepdims=True)  # (n, 1, 1)
+
+    def capped(c: np.ndarray) -> np.ndarray:
+        return x + d * np.minimum(1.0, c[:, None, None] * top / np.maximum(norm, 1e-300))
+
+    lo, hi = np.zeros(len(x)), np.ones(len(x))
+    best_pd = np.full(len(x), np.nan)
+    for _ in range(steps if len(x) else 0):
+        c = 0.5 * (lo + hi)
+        pd = label(capped(c))
+        free = np.nan_to_num(pd, nan=np.inf) <= 0
+        hi[free], best_pd[free] = c[free], pd[free]
+        lo[~free] = c[~free]
+    kept = hi < 1
+    return np.where(kept[:, None, None], capped(hi), result), best_pd, hi
+
+
+def edge_strain(v_in: np.ndarray, v_out: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(B,) per mesh, the largest relative change of an edge's length, ``max_e |len_out / len_in - 1|``."""
+    from neuralcol.geometry.topology import edge_topology
+
+    e = edge_topology(faces).edges
+    v_in, v_out = np.asarray(v_in, np.float64), np.asarray(v_out, np.float64)
+    before = np.linalg.norm(v_in[:, e[:, 0]] - v_in[:, e[:, 1]], axis=-1)
+    after = np.linalg.norm(v_out[:, e[:, 0]] - v_out[:, e[:, 1]], axis=-1)
+    return np.abs(after / np.maximum(before, 1e-300) - 1).max(-1)
 
 
 def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
@@ -389,15 +438,28 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
             moved = shrink[rows] < 1
             out[rows], pd_v[rows[moved]], repaired[rows[moved]] = kept, pd_s[moved], True
             stage[rows[moved]] = len(margins) + 1
+        cap = _capped(v_user.numpy(), out, pd_in, pd_v, label, repair.cap_steps)
     else:
-        shrink = None
+        shrink = cap = None
     if certify is None:
         return MeshResolution(out, decoded.numpy(), z, z_user, pd_in, pd_after, pd_v, stage,
-                              res.feasible.numpy(), pd_esc, repaired, shrink=shrink)
+                              res.feasible.numpy(), pd_esc, repaired, shrink=shrink, cap=cap)
     pd_v, exact, free = certified_outcome(pd_v)
     return MeshResolution(out, decoded.numpy(), z, z_user, pd_in, certified_outcome(pd_after)[0], pd_v, stage,
                           res.feasible.numpy(), certified_outcome(pd_esc)[0], repaired, exact, free,
-                          decide.exact_share, shrink)
+                          decide.exact_share, shrink, cap)
+
+
+def _capped(x: np.ndarray, out: np.ndarray, pd_in: np.ndarray, pd_v: np.ndarray, label, steps: int) -> np.ndarray:
+    """``repair.cap_steps``: the colliding inputs returned free by the exact label get :func:`cap_displacements`
+    (``out`` and ``pd_v`` updated in place); returns the cap per input (NaN where not tried)."""
+    cap = np.full(len(out), np.nan)
+    rows = np.flatnonzero(~(pd_in <= 0) & (pd_v <= 0) & np.isfinite(pd_v))
+    if steps and len(rows):
+        kept, pd_c, cap[rows] = cap_displacements(x[rows], out[rows], label, steps)
+        moved = cap[rows] < 1
+        out[rows], pd_v[rows[moved]] = kept, pd_c[moved]
+    return cap
 
 
 def _repaired_inputs(space, v_user: torch.Tensor, pd_in: np.ndarray, label, repair, labeler, progress: bool):
@@ -444,6 +506,12 @@ def _repair_first_then_rest(net, space, v_user, label, settings, margins, batch_
     pd_det, pd_v, pd_esc = nan.copy(), nan.copy(), nan.copy()
     stage, feasible, repaired = np.zeros(n, np.int64), np.zeros(n, bool), np.zeros(n, bool)
     out[freed], pd_v[freed], stage[freed], repaired[freed] = fixed[ok], pd_fix[ok], len(margins) + 1, True
+    cap = np.full(n, np.nan)
+    if len(freed):  # (fancy indexing copies: _capped updates these, then they go back)
+        out_f, pd_f = out[freed], pd_v[freed]
+        cap[freed] = _capped(v_user[torch.as_tensor(freed)].numpy(), out_f, pd_in[freed], pd_f, label,
+                             repair.cap_steps)
+        out[freed], pd_v[freed] = out_f, pd_f
     exact = free = share = None
     shrink = np.full(n, np.nan)
     if certify is not None:
@@ -454,8 +522,8 @@ def _repair_first_then_rest(net, space, v_user, label, settings, margins, batch_
         out[rows], decoded[rows], codes[r] = sub.vertices, sub.decoded, sub.codes.float()
         pd_det[rows], pd_v[rows], pd_esc[rows] = sub.pd_after_detector, sub.pd_after, sub.pd_after_escalation
         stage[rows], feasible[rows], repaired[rows] = sub.stage, sub.feasible, sub.repaired
-        shrink[rows] = sub.shrink
+        shrink[rows], cap[rows] = sub.shrink, sub.cap
         if certify is not None:
             exact[rows], free[rows], share = sub.exact, sub.free, sub.exact_share
     return MeshResolution(out, decoded, codes, z_user, pd_in, pd_det, pd_v, stage, feasible, pd_esc, repaired,
-                          exact, free, share, shrink)
+                          exact, free, share, shrink, cap)

@@ -31,7 +31,7 @@ from neuralcol.data.realistic import (
     out_of_box,
 )
 from neuralcol.handler.alm import ALMSettings
-from neuralcol.handler.resolve import displacement_stats, resolve_meshes
+from neuralcol.handler.resolve import displacement_stats, edge_strain, resolve_meshes
 from neuralcol.metrics.detection import detection_metrics
 from neuralcol.nn.part_geometry import code_mesh_logits
 from neuralcol.utils.config import as_dict
@@ -237,9 +237,12 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
             "detector_only": rates(res.pd_after_detector), "verified": rates(res.pd_after),
             "verified_margins_only": rates(res.pd_after_escalation),
             "repair": None if repair is None else {**repair.__dict__, "n_repaired": int(res.repaired.sum()),
-                                                   "n_shrunk": int(np.sum(res.shrink < 1))},
+                                                   "n_shrunk": int(np.sum(res.shrink < 1)),
+                                                   "n_capped": int(np.sum(res.cap < 1))},
             "detector_called_free_before": float(np.mean(logit[pick] <= 0)),
             **moved_summary(moved, ok),
+            "edge_strain_p95": float(np.percentile(edge_strain(meshes.vertices[pick][ok], res.vertices[ok],
+                                                               space.faces.cpu().numpy()), 95)) if ok.any() else None,
             "displacement_median": float(np.nanmedian(moved["median"][ok])) if ok.any() else None,
             "diagonal": diag, "seconds": t_handle,
         }
