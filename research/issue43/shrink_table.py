@@ -29,7 +29,7 @@ def main() -> None:
         return "" if h.get("edge_strain_p95") is None else f"{h['edge_strain_p95']:.3f}"
 
     never_lower, p95_never_higher, p95_lower, ok_c, ok_d = True, True, 0, True, True
-    print("| run | verified free | median displacement (% diag) | p95 largest (%) | median largest (%) | shrunk "
+    print("| run | verified free | median displacement (% diag) | p95 largest (%) | median largest (%) | changed "
           "| handling s | p95 edge strain |")
     print("|---|---|---|---|---|---|---|---|")
     for run in a.runs:
