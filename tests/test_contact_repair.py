@@ -194,18 +194,33 @@ def test_cap_displacements_clips_the_largest_moves_to_the_smallest_free_cap():
     x = np.zeros((2, 3, 3))
     result = np.zeros((2, 3, 3))
     result[:, :, 0] = [1.0, 2.0, 4.0]
-    need = np.array([0.8, 5.0])  # the second is never free below the full result
+    result[1, 2, 1] = 1.0  # the second also moves vertex 2 sideways: never free below the full result
 
     def label(m):
-        return np.where(m[:, 0, 0] >= need - 1e-12, -1.0, 0.3)
+        return np.where((m[:, 0, 0] >= 0.8 - 1e-12) & (m[:, 2, 1] == 0), -1.0, 0.3)
 
     kept, pd, c = cap_displacements(x, result, label, steps=6)
     assert 0.2 <= c[0] < 0.2 + 1 / 64 and pd[0] == -1.0
     np.testing.assert_allclose(kept[0, :, 0], np.minimum([1.0, 2.0, 4.0], 4 * c[0]))
     np.testing.assert_array_equal(kept[0, :, 1:], 0.0)
+    assert np.array_equal(kept[1], result[1])
     assert c[1] == 1.0 and np.isnan(pd[1]) and np.array_equal(kept[1], result[1])
     kept, pd, c = cap_displacements(x, result, label, steps=0)
     assert (c == 1.0).all() and np.array_equal(kept, result)
+    # the bisection on the verdict, the full label only for what is kept: the same caps, one label call
+    calls = []
+
+    def counted(m):
+        calls.append(len(m))
+        return label(m)
+
+    kept2, pd2, c2 = cap_displacements(x, result, counted, 6, collides=lambda m: label(m) > 0)
+    np.testing.assert_array_equal(c2, [cap0 := cap_displacements(x, result, label, 6)[2][0], 1.0])
+    assert calls == [1] and pd2[0] == -1.0 and np.isnan(pd2[1]) and cap0 < 1
+    # a verdict the full label contradicts: the capped mesh is dropped, the result kept
+    kept3, pd3, c3 = cap_displacements(x, result, lambda m: np.full(len(m), 0.3), 6,
+                                       collides=lambda m: np.zeros(len(m), bool))
+    assert (c3 == 1.0).all() and np.isnan(pd3).all() and np.array_equal(kept3, result)
     with pytest.raises(ValueError, match="cap_steps"):
         RepairSettings(cap_steps=-2)
 

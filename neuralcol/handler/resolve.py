@@ -271,16 +271,20 @@ def shrink_corrections(x: np.ndarray, result: np.ndarray,
 
 
 def cap_displacements(x: np.ndarray, result: np.ndarray, label: Callable[[np.ndarray], np.ndarray],
-                      steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      steps: int, collides: Callable[[np.ndarray], np.ndarray] | None = None,
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The smallest cap on each result's vertex displacements that leaves it collision-free (issue 43).
 
     With ``d = result - x`` and ``m`` its largest vertex displacement, the capped mesh is
     ``x + d_i min(1, c m / |d_i|)`` (each vertex's move keeps its direction, its length clipped at ``c m``: a
-    continuous field); bisection over ``steps`` steps (one batched label per step) finds the smallest ``c`` in (0, 1]
-    at which the exact label calls it free.
+    continuous field); bisection over ``steps`` steps finds the smallest ``c`` in (0, 1] at which the mesh is free.
 
     Args:
         label: meshes (m, V, 3) -> exact PD (m,) (NaN where the labeler failed).
+        collides: meshes (m, V, 3) -> (m,) bool, the exact verdict (e.g. ``ExactLabeler.verdict``, far cheaper
+            than the full label). With it the bisection asks the verdict and only the capped meshes kept get
+            ``label`` (a capped mesh whose label is not free is dropped: its result kept); without it each step is
+            one batched ``label``.
 
     Returns:
         (meshes (n, V, 3), pd (n,): the capped mesh's exact PD, NaN where the result was kept, c (n,): 1.0 where kept).
@@ -297,11 +301,20 @@ def cap_displacements(x: np.ndarray, result: np.ndarray, label: Callable[[np.nda
     best_pd = np.full(len(x), np.nan)
     for _ in range(steps if len(x) else 0):
         c = 0.5 * (lo + hi)
-        pd = label(capped(c))
-        free = np.nan_to_num(pd, nan=np.inf) <= 0
-        hi[free], best_pd[free] = c[free], pd[free]
+        if collides is None:
+            pd = label(capped(c))
+            free = np.nan_to_num(pd, nan=np.inf) <= 0
+            best_pd[free] = pd[free]
+        else:
+            free = ~np.asarray(collides(capped(c)), bool)
+        hi[free] = c[free]
         lo[~free] = c[~free]
     kept = hi < 1
+    if collides is not None and kept.any():  # the full label of what is kept
+        rows = np.flatnonzero(kept)
+        best_pd[rows] = label(capped(hi)[rows])
+        bad = rows[~(np.nan_to_num(best_pd[rows], nan=np.inf) <= 0)]
+        hi[bad], best_pd[bad], kept[bad] = 1.0, np.nan, False
     return np.where(kept[:, None, None], capped(hi), result), best_pd, hi
 
 
@@ -440,7 +453,7 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
             moved = shrink[rows] < 1
             out[rows], pd_v[rows[moved]], repaired[rows[moved]] = kept, pd_s[moved], True
             stage[rows[moved]] = len(margins) + 1
-        cap = _capped(v_user.numpy(), out, pd_in, pd_v, label, repair.cap_steps)
+        cap = _capped(v_user.numpy(), out, pd_in, pd_v, label, repair.cap_steps, labeler)
     else:
         shrink = cap = None
     if certify is None:
@@ -452,13 +465,16 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
                           decide.exact_share, shrink, cap)
 
 
-def _capped(x: np.ndarray, out: np.ndarray, pd_in: np.ndarray, pd_v: np.ndarray, label, steps: int) -> np.ndarray:
+def _capped(x: np.ndarray, out: np.ndarray, pd_in: np.ndarray, pd_v: np.ndarray, label, steps: int,
+            labeler) -> np.ndarray:
     """``repair.cap_steps``: the colliding inputs returned free by the exact label get :func:`cap_displacements`
-    (``out`` and ``pd_v`` updated in place); returns the cap per input (NaN where not tried)."""
+    (bisection on ``labeler.verdict``; ``out`` and ``pd_v`` updated in place); returns the cap per input (NaN where
+    not tried)."""
     cap = np.full(len(out), np.nan)
     rows = np.flatnonzero(~(pd_in <= 0) & (pd_v <= 0) & np.isfinite(pd_v))
     if steps and len(rows):
-        kept, pd_c, cap[rows] = cap_displacements(x[rows], out[rows], label, steps)
+        kept, pd_c, cap[rows] = cap_displacements(x[rows], out[rows], label, steps,
+                                                  lambda m: np.array([labeler.verdict(v) for v in m], bool))
         moved = cap[rows] < 1
         out[rows], pd_v[rows[moved]] = kept, pd_c[moved]
     return cap
@@ -512,7 +528,7 @@ def _repair_first_then_rest(net, space, v_user, label, settings, margins, batch_
     if len(freed):  # (fancy indexing copies: _capped updates these, then they go back)
         out_f, pd_f = out[freed], pd_v[freed]
         cap[freed] = _capped(v_user[torch.as_tensor(freed)].numpy(), out_f, pd_in[freed], pd_f, label,
-                             repair.cap_steps)
+                             repair.cap_steps, labeler)
         out[freed], pd_v[freed] = out_f, pd_f
     exact = free = share = None
     shrink = np.full(n, np.nan)

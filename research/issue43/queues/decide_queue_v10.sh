@@ -1,0 +1,28 @@
+#!/bin/bash
+# issue 43, stop 53: the rule registered in docs/real_meshes.md ("Capping the displacement", rule v10: verdict-only bisection): each seed-0
+# run's realistic evaluation with today's defaults (cap_steps=0) and with cap_steps=6, one after the other,
+# ALONE (the paper-scale queue is paused with SIGSTOP while these run, resumed after). Runs from a frozen worktree
+# (/work/decide10, its commit printed first) so that edits in /work/main cannot change the code mid-run.
+# Writes <run>/realistic_cap{0,6}_stop53b.json; then the user path (resolve_time.py, SCAPE's first 40) with both.
+M_ROOT=/work/main
+cd /work/decide10 || exit 1
+git rev-parse HEAD
+export PYTHONPATH=/work/decide10 NEURALCOL_DATA=/work/shared/data
+PY=/work/main/.venv/bin/python
+pause() { for p in $(pgrep -f "experiments.run experiment=paper_scape"); do kill -$1 $p; pkill -$1 -P $p; done; }
+trap 'pause CONT' EXIT
+pause STOP
+for R in outputs/issue41/item4/makerun4_fresh outputs/issue41/scape_def_s0 outputs/issue41/cloth_def_s0 outputs/issue41/anny_def_s0; do
+  for S in 0 6; do
+    test -f $M_ROOT/$R/realistic_cap${S}_stop53b.json && continue
+    /usr/bin/time -v $PY -m experiments.evaluate_realistic $M_ROOT/$R --repair-set method=contact_untangle \
+        --repair-set cap_steps=$S --set repair_reference=true --out realistic_cap${S}_stop53b.json \
+        >> $M_ROOT/outputs/issue43/decide_$(basename $R)_cap${S}_stop53b.log 2>&1
+  done
+done
+for S in 0 6; do
+  $PY research/issue43/resolve_time.py $M_ROOT/outputs/issue41/scape_def_s0 0:40 --methods contact_untangle \
+      --set handler.repair.cap_steps=$S --out $M_ROOT/outputs/issue43/user_scape_cap${S}_stop53b.json \
+      > $M_ROOT/outputs/issue43/user_scape_cap${S}_stop53b.log 2>&1
+done
+echo done > $M_ROOT/outputs/issue43/decide_v10.done
