@@ -221,6 +221,7 @@ def test_resolve_repair_first(trained, monkeypatch):
     verts = verts[torch.as_tensor(np.flatnonzero(trained.label(verts).collides)[:3])].double()
     cfg = OmegaConf.create(OmegaConf.to_container(trained.cfg))
     cfg.handler.repair.first = True
+    cfg.handler.repair.cap_steps = 0  # the repair's own mesh, not capped
     monkeypatch.setattr(trained, "cfg", cfg)
     res = trained.resolve(verts, margins=[4.0])
     rest = trained.space.rest_vertices.numpy()
@@ -248,6 +249,7 @@ def test_resolve_shrinks_the_neural_correction(trained, monkeypatch):
     verts = verts[torch.as_tensor(np.flatnonzero(trained.label(verts).collides)[:6])].double()
     cfg = OmegaConf.create(OmegaConf.to_container(trained.cfg))
     cfg.handler.repair.first = False  # every input takes the neural path
+    cfg.handler.repair.cap_steps = 0  # the shrink alone
     monkeypatch.setattr(trained, "cfg", cfg)
     plain = trained.resolve(verts, margins=[4.0])
     assert np.isnan(plain.shrink).all()  # off by default

@@ -166,7 +166,8 @@ class RepairSettings:
                                 # (from the input) where it fails
     untangle: dict | None = None  # settings of neuralcol.handler.untangle.UntangleSettings (None: its defaults)
     shrink_steps: int = 0       # resolve: bisection steps shrinking the neural path's correction (0: off)
-    cap_steps: int = 0          # resolve: bisection steps capping a freed result's displacement (0: off)
+    cap_steps: int = 6          # resolve: bisection steps capping a freed result's displacement (0: off; the
+                                # default since stop 53, rule v10 met)
 
     def __post_init__(self):
         if self.delta <= 0 or self.smooth_steps < 0 or self.max_iter < 0 or self.max_step <= 0:
