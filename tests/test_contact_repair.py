@@ -223,6 +223,8 @@ def test_cap_displacements_clips_the_largest_moves_to_the_smallest_free_cap():
     assert (c3 == 1.0).all() and np.isnan(pd3).all() and np.array_equal(kept3, result)
     with pytest.raises(ValueError, match="cap_steps"):
         RepairSettings(cap_steps=-2)
+    with pytest.raises(ValueError, match="whole number"):
+        RepairSettings(cap_steps="6")
 
 
 def test_edge_strain():

@@ -174,8 +174,9 @@ class RepairSettings:
             raise ValueError(f"handler.repair {self}: need delta > 0, smooth_steps >= 0, max_iter >= 0, "
                              "max_step > 0")
         for key in ("shrink_steps", "cap_steps"):
-            if getattr(self, key) < 0:
-                raise ValueError(f"handler.repair.{key}={getattr(self, key)}; use 0 (off) or a number of steps")
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"handler.repair.{key}={value!r}; use 0 (off) or a whole number of steps")
         if self.method not in REPAIR_METHODS:
             raise ValueError(f"handler.repair.method={self.method!r}; use one of {', '.join(REPAIR_METHODS)}")
 
