@@ -17,7 +17,7 @@ import numpy as np
 import neuralcol
 from neuralcol.handler.contact_repair import outward_sign, repair_from_config, repair_meshes
 from neuralcol.handler.resolve import cap_displacements, shrink_corrections
-from research.issue43.untangle_probe import realistic_set
+from research.issue43.untangle_probe import colliding_rows
 
 
 def main() -> None:
@@ -27,12 +27,9 @@ def main() -> None:
     ap.add_argument("--mode", choices=("scale", "cap"), default="cap")
     ap.add_argument("--above", type=float, default=0.02)
     a = ap.parse_args()
-    lo, _, hi = a.rows.rpartition(":")
     run = neuralcol.load_run(a.run_dir, workers=0)
     lab, faces = run.labeler, run.faces
-    data = realistic_set(run)
-    pick = np.flatnonzero(data["pd"] > 0)[int(lo or 0):int(hi)]
-    x = data["vertices"][pick].astype(np.float64)
+    data, pick, x = colliding_rows(run, a.rows)
     settings = repair_from_config(run.cfg, enabled=True, overrides=["method=contact_untangle"])
     out, _, _ = repair_meshes(x, faces, lab, settings, float(lab.eps), lab.diag, outward_sign(faces, lab.rest))
 

@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 import neuralcol
-from research.issue43.untangle_probe import realistic_set
+from research.issue43.untangle_probe import colliding_rows
 
 VARIANTS = {
     "cartesian": dict(objective="cartesian"),
@@ -32,11 +32,8 @@ def main() -> None:
     ap.add_argument("rows")
     ap.add_argument("--out")
     a = ap.parse_args()
-    lo, _, hi = a.rows.rpartition(":")
     run = neuralcol.load_run(a.run_dir)
-    data = realistic_set(run)
-    pick = np.flatnonzero(data["pd"] > 0)[int(lo or 0):int(hi)]
-    x = data["vertices"][pick].astype(np.float64)
+    _, pick, x = colliding_rows(run, a.rows)
     t = time.perf_counter()
     res = run.resolve(x)
     free = np.nan_to_num(res.pd_after, nan=1.0) <= 0

@@ -16,7 +16,7 @@ import numpy as np
 
 import neuralcol
 from neuralcol.handler.contact_repair import outward_sign, repair_from_config, repair_meshes
-from research.issue43.untangle_probe import realistic_set
+from research.issue43.untangle_probe import colliding_rows
 
 
 def main() -> None:
@@ -26,12 +26,9 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=5)
     ap.add_argument("--out")
     a = ap.parse_args()
-    lo, _, hi = a.rows.rpartition(":")
     run = neuralcol.load_run(a.run_dir, workers=0)
     lab, faces = run.labeler, run.faces
-    data = realistic_set(run)
-    pick = np.flatnonzero(data["pd"] > 0)[int(lo or 0):int(hi)]
-    x = data["vertices"][pick].astype(np.float64)
+    _, pick, x = colliding_rows(run, a.rows)
     settings = repair_from_config(run.cfg, enabled=True)
     sign = outward_sign(faces, lab.rest)
 

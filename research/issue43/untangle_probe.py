@@ -31,6 +31,15 @@ def realistic_set(run) -> dict:
     return dict(np.load(files[0]))
 
 
+def colliding_rows(run, rows: str) -> tuple[dict, np.ndarray, np.ndarray]:
+    """The run's realistic set, the indices of its colliding meshes in ``rows`` ("A:B" of the colliding ones) and
+    their vertices (n, V, 3) float64."""
+    lo, _, hi = rows.rpartition(":")
+    data = realistic_set(run)
+    pick = np.flatnonzero(data["pd"] > 0)[int(lo or 0):int(hi)]
+    return data, pick, data["vertices"][pick].astype(np.float64)
+
+
 def main() -> None:
     run = neuralcol.load_run(sys.argv[1], workers=0)
     lo, _, hi = sys.argv[2].rpartition(":")
