@@ -104,6 +104,29 @@ def test_losses_match_hand_computation():
         assert getattr(got, name).item() == pytest.approx(value, rel=1e-5), name
 
 
+def test_ranking_loss_equals_the_mean_over_ordered_pairs_with_its_gradient():
+    """L_r as a masked sum (issue 42's faster form) is the mean of max(0, margin - gap) over the ordered pairs with
+    PD_a < PD_b taken by boolean indexing, value and gradient, ties in PD included (they are no pair)."""
+    torch.manual_seed(3)
+    s = torch.randn(64, 4, dtype=torch.float64, requires_grad=True)
+    logit = torch.randn(64, dtype=torch.float64)
+    pd = torch.randint(-3, 4, (64,)).double() / 10  # many ties
+    zeros = dict(w_pd=0.0, w_pdsum=0.0, w_r=1.0, w_ce=0.0, w_b=0.0)
+    got = detector_losses(DetectorOutput(torch.sigmoid(logit), logit, s), pd, torch.zeros(64, 4),
+                          torch.zeros(64, dtype=torch.long), margin=0.05, temperature=0.1, **zeros)
+    (g_got,) = torch.autograd.grad(got.rank, s)
+    agg = smooth_max(s, 0.1)
+    less = pd[:, None] < pd[None, :]
+    ref = torch.relu(0.05 - (agg[None, :] - agg[:, None]))[less].mean()
+    (g_ref,) = torch.autograd.grad(ref, s)
+    assert got.rank.item() == pytest.approx(ref.item(), rel=1e-12)
+    assert torch.allclose(g_got, g_ref, rtol=1e-10, atol=1e-14)
+    flat = torch.full((5,), 0.1, dtype=torch.float64)  # every PD equal: no pair, L_r = 0
+    out = DetectorOutput(torch.full((5,), 0.5), torch.zeros(5), torch.zeros(5, 2))
+    assert detector_losses(out, flat, torch.zeros(5, 2), torch.zeros(5, dtype=torch.long), margin=0.05,
+                           temperature=0.1, **zeros).rank.item() == 0.0
+
+
 def test_boundary_reduction_batch_weighs_a_boundary_row_like_a_ce_row():
     """L_b of the paper is a mean over the batch's D_b rows; "batch" divides their sum by the batch size."""
     logit = torch.tensor([0.5, -1.0, 0.2, 1.5, -0.3])
