@@ -80,19 +80,25 @@ class CollisionDataModule(L.LightningDataModule):
         use_boundary_set: keep D_b (``supv_bd``, ``active``) or fold it into D_p (``supv``).
         n_pairs: P, the contact pairs whose features each row keeps (0: none; a detector that reads codes only).
         seed: shuffling seed (the order of epoch e depends on ``(seed, e)`` only, so resumed runs replay it).
+        val_batch_size: validation batch size; None (default): the training batch size at the time, so the
+            validation losses are those of the batches training sees (the ranking term compares the rows of one
+            batch: at 8192 rows, the size before issue 42, it made validation 8x slower than at 1024 on SCAPE and
+            most of a paper-scale epoch; the accuracy does not depend on it).
         featurize: ``codes (B, D) -> pair features (B, P, 3)`` of the meshes they decode to, computed for rows
             appended without features (the labeled samples of every round; issue 41), so training never decodes.
     """
 
     def __init__(self, path: str | os.PathLike, latent_dim: int, n_parts: int, batch_size: int, pd_unit: float,
-                 pd_clip: float, use_boundary_set: bool = True, seed: int = 0, val_batch_size: int = 8192,
+                 pd_clip: float, use_boundary_set: bool = True, seed: int = 0, val_batch_size: int | None = None,
                  pd_floor: float | None = None, n_pairs: int = 0, featurize=None):
         super().__init__()
         if batch_size < 1:
             raise ValueError(f"batch_size={batch_size} must be >= 1")
+        if val_batch_size is not None and val_batch_size < 1:
+            raise ValueError(f"val_batch_size={val_batch_size} must be >= 1 (or None: the training batch size)")
         self.store = CollisionStore(path, latent_dim, n_parts, n_pairs)
         self.batch_size = int(batch_size)
-        self.val_batch_size = int(val_batch_size)
+        self.val_batch_size = None if val_batch_size is None else int(val_batch_size)
         self.pd_unit = float(pd_unit)
         self.pd_clip = float(pd_clip)
         self.pd_floor = None if pd_floor is None else float(pd_floor)
@@ -143,7 +149,8 @@ class CollisionDataModule(L.LightningDataModule):
     def val_dataloader(self) -> DataLoader:
         if self._val is None:
             self.refresh()
-        return batched_loader(self._val, SequentialSampler(range(len(self._val[0]))), self.val_batch_size)
+        size = self.batch_size if self.val_batch_size is None else self.val_batch_size
+        return batched_loader(self._val, SequentialSampler(range(len(self._val[0]))), size)
 
     def close(self) -> None:
         self.store.close()
