@@ -42,7 +42,6 @@ class DetectorLitModule(SplitStepModule):
         self.optimizer = optimizer
         self.lr = float(lr)
         self._sums: dict = {}  # split -> (weighted sums of the logged values, rows) of the running epoch
-        self._seen: dict = {}  # split -> batches of the running epoch so far
         self.loss_kwargs = dict(w_pd=w_pd, w_pdsum=w_pdsum, w_r=w_r, w_ce=w_ce, w_b=w_b, margin=margin,
                                 temperature=temperature, ce_on_boundary=bool(ce_on_boundary),
                                 boundary_reduction=str(boundary_reduction))
@@ -57,47 +56,45 @@ class DetectorLitModule(SplitStepModule):
 
     LOGGED = ("loss", "loss_pd", "loss_rank", "loss_ce", "loss_b", "accuracy")  # ``<split>/<name>``, epoch means
 
-    def step(self, batch, split: str) -> torch.Tensor:
+    def training_step(self, batch, batch_idx):
+        return self.step(batch, "train", batch_idx)
+
+    def validation_step(self, batch, batch_idx):
+        self.step(batch, "val", batch_idx)
+
+    def step(self, batch, split: str, batch_idx: int | None = None) -> torch.Tensor:
         z, pd, pd_sub, subset, *geometry = batch  # geometry: the rows' pair features, for a detector reading them
         out = self.net(z, *geometry)
         losses = detector_losses(out, pd, pd_sub, subset, **self.loss_kwargs)
         acc = ((out.logit > 0) == (pd > 0)).float().mean()
         self._accumulate(split, torch.stack([losses.total, losses.pd, losses.rank, losses.ce, losses.boundary, acc]),
-                         len(z))
+                         len(z), batch_idx)
         return losses.total
 
-    def _accumulate(self, split: str, values: torch.Tensor, bs: int) -> None:
-        """Add one batch's logged values (weighted by its rows) to the epoch's sums; on the epoch's last batch log
-        their means (what ``log(..., on_epoch=True, batch_size=bs)`` of every batch gives, up to round-off). One
-        ``log_dict`` an epoch instead of six ``log`` calls a step: Lightning's per-call bookkeeping was about a
-        third of a training step of the SCAPE detector (issue 42)."""
-        sums, rows = self._sums.get(split, (0.0, 0))
-        sums, rows = values.detach() * bs + sums, rows + bs
+    def _accumulate(self, split: str, values: torch.Tensor, bs: int, batch_idx: int | None) -> None:
+        """Add one batch's logged values (weighted by its rows) to the epoch's sums (restarted at batch 0); on the
+        epoch's last batch log their means (what ``log(..., on_epoch=True, batch_size=bs)`` of every batch gives, up
+        to round-off). One ``log_dict`` an epoch instead of six ``log`` calls a step: Lightning's per-call
+        bookkeeping was about a third of a training step of the SCAPE detector (issue 42). Where the epoch's batch
+        count is unknown (or no batch index is given), every batch logs its own values."""
         n_batches = self._batches_in_epoch(split)
-        self._seen[split] = self._seen.get(split, 0) + 1
-        if n_batches is None or self._seen[split] >= n_batches:  # the epoch's last batch (or unknown: every one)
-            means = (sums / rows).tolist()
-            self.log_dict({f"{split}/{k}": v for k, v in zip(self.LOGGED, means)}, on_step=False, on_epoch=True,
-                          batch_size=1)
-            self._sums.pop(split, None)
-            self._seen[split] = 0
-        else:
-            self._sums[split] = (sums, rows)
+        if batch_idx is None or n_batches is None:
+            self.log_dict({f"{split}/{k}": v for k, v in zip(self.LOGGED, values)}, on_step=False, on_epoch=True,
+                          batch_size=bs)
+            return
+        sums, rows = (0.0, 0) if batch_idx == 0 else self._sums[split]
+        sums, rows = values.detach() * bs + sums, rows + bs
+        self._sums[split] = (sums, rows)
+        if batch_idx + 1 >= n_batches:  # the epoch's last batch
+            self.log_dict({f"{split}/{k}": v for k, v in zip(self.LOGGED, (sums / rows).tolist())}, on_step=False,
+                          on_epoch=True, batch_size=1)
 
     def _batches_in_epoch(self, split: str) -> int | None:
-        """Batches of this epoch's ``split`` (None where the trainer does not know: then every batch logs)."""
+        """Batches of this epoch's ``split`` (None where the trainer does not know)."""
         if self._trainer is None:
             return None
         n = self.trainer.num_training_batches if split == "train" else sum(self.trainer.num_val_batches or [0])
         return int(n) if n not in (None, float("inf")) and n > 0 else None
-
-    def on_train_epoch_start(self) -> None:
-        self._sums.pop("train", None)
-        self._seen["train"] = 0
-
-    def on_validation_epoch_start(self) -> None:
-        self._sums.pop("val", None)
-        self._seen["val"] = 0
 
     def configure_optimizers(self):
         return self.optimizer(self.net.parameters(), lr=self.lr)

@@ -27,7 +27,7 @@ from neuralcol.samples.datamodule import CollisionDataModule
 class StepLogging(DetectorLitModule):
     """The module's logging before issue 42: every batch logs its six values (Lightning averages them)."""
 
-    def _accumulate(self, split, values, bs):
+    def _accumulate(self, split, values, bs, batch_idx=None):
         self.log_dict({f"{split}/{k}": v for k, v in zip(self.LOGGED, values)}, on_step=False, on_epoch=True,
                       batch_size=bs)
 
