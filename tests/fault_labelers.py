@@ -23,6 +23,9 @@ NAN = 1004.0  # label() returns a NaN PD
 FLAKY = 1005.0  # label() raises the first time it sees such a mesh in this process, then labels it
 EXIT_ONCE = 1006.0  # the process dies with os._exit(3) the first time any process sees such a mesh (needs
                     # FaultLabeler.marker: a file path, created by the process that dies), then labels it
+SLOW = 1007.0  # label() computes for SLOW_S seconds of CPU time, then labels (slow but not hung; a stopped
+               # process does not advance it, as it does a sleep)
+SLOW_S = 1.5
 
 _seen_flaky: set[bytes] = set()
 
@@ -58,6 +61,10 @@ class FaultLabeler(ExactLabeler):
                 os._exit(3)
         if x == HANG:
             time.sleep(1e6)
+        if x == SLOW:
+            t0 = time.process_time()
+            while time.process_time() - t0 < SLOW_S:
+                pass
         if x == NAN:
             lb = super().label(v)
             return Label(lb.collides, lb.n_pairs, float("nan"), lb.pd_sub)

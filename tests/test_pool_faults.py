@@ -9,15 +9,19 @@ Worker-process tests spawn real workers (a few seconds each on a busy machine); 
 from __future__ import annotations
 
 import logging
+import multiprocessing
+import os
+import subprocess
 import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
 import torch
-from fault_labelers import EXIT, FLAKY, HANG, NAN, RAISE, FaultLabeler, mark, two_spheres
+from fault_labelers import EXIT, FLAKY, HANG, NAN, RAISE, SLOW, FaultLabeler, mark, two_spheres
 
 from neuralcol.active.acquisition import AcquiredRows, UniformAcquisition, concat_acquired
+from neuralcol.collision import pool_common
 from neuralcol.collision.labeler import ExactLabeler, Labels
 from neuralcol.collision.pool import LabelingError, LabelPool
 from neuralcol.samples.oracle import LatentOracle
@@ -134,6 +138,40 @@ def test_hang_times_out_and_is_reported(setup):
     assert report.failures[0].reason == "timed out after 3 s"
     assert_rows_equal(report.labels, reference(clean, bad), report.ok)
     assert seconds < 60, "two timeouts plus two restarts"
+
+
+def test_a_stopped_process_is_not_a_hung_chunk(setup, caplog):
+    """``kill -STOP`` of the labeling process and its workers for longer than the timeout (Ctrl-Z, a paused
+    queue), during a slow chunk: when they go on, the chunk is not taken for hung (issue 42's paper-scale run
+    lost 20 minutes to that: the pause counted as the chunk's running time)."""
+    clean, faulty, batch = setup
+    slow = batch.copy()
+    slow[1] = mark(slow[1], SLOW)
+    with LabelPool(faulty, workers=2, chunk_size=4, timeout=3) as pool:
+        pool.label(batch[:2])  # the workers are up
+        pids = " ".join(str(p) for p in [os.getpid(), *(c.pid for c in multiprocessing.active_children())])
+        stopper = subprocess.Popen(["sh", "-c", f"sleep 0.5; kill -STOP {pids}; sleep 5; kill -CONT {pids}"])
+        try:
+            with caplog.at_level(logging.INFO, logger="neuralcol.collision.pool"):
+                t0 = time.monotonic()
+                report = pool.label_report(slow)
+                seconds = time.monotonic() - t0
+        finally:
+            stopper.wait()
+    assert seconds > 5, "the stopper did not stop this process"
+    assert not report.failures and "timed out" not in caplog.text
+    assert_rows_equal(report.labels, reference(clean, slow), report.ok)
+
+
+def test_run_clock_leaves_out_stopped_time(monkeypatch):
+    now = [100.0]
+    monkeypatch.setattr(pool_common.time, "monotonic", lambda: now[0])
+    clock = pool_common.RunClock(max_gap=2.0)
+    readings = []
+    for t in (100.5, 101.9, 103.8, 113.8, 114.3):  # gaps 0.5, 1.4, 1.9 (running), 10 (stopped), 0.5
+        now[0] = t
+        readings.append(clock())
+    assert readings == pytest.approx([100.5, 101.9, 103.8, 103.8 + pool_common.POLL_S, 104.3 + pool_common.POLL_S])
 
 
 def test_non_finite_meshes(setup):

@@ -33,8 +33,9 @@ Worker faults (one bad mesh never loses the batch):
   attribute is missing, the pids the workers reported at start-up are killed and the executor abandoned) and
   restarted, and the in-flight chunks become suspects as above; a mesh that times out again alone is
   reported (``"timed out after 3 s"``). At most ``workers`` chunks are in flight and new workers are probed
-  before any chunk is sent, so a chunk's clock starts about when a worker takes it; only a mesh running alone
-  is ever reported, so a slow worker start-up cannot get an innocent mesh reported. On dask, each chunk reports
+  before any chunk is sent, so a chunk's clock starts about when a worker takes it; time the labeling process
+  was stopped (``kill -STOP``, Ctrl-Z) does not count (``RunClock``); only a mesh running alone is ever
+  reported, so a slow worker start-up cannot get an innocent mesh reported. On dask, each chunk reports
   when a worker thread starts it; a chunk past ``timeout`` is cancelled, its worker process killed through its
   nanny (which starts a new one) and its meshes relabelled one at a time as above.
 * **Non-finite input vertices** are reported as ``"non-finite vertices"`` without being labelled.
@@ -65,7 +66,6 @@ import logging
 import multiprocessing
 import os
 import signal
-import time
 import weakref
 from concurrent.futures.process import BrokenProcessPool
 from typing import NamedTuple
@@ -74,8 +74,10 @@ import numpy as np
 
 from neuralcol.collision.labeler import ExactLabeler, Label, Labels, check_clearance_limit
 from neuralcol.collision.pool_common import (
+    POLL_S,
     STARTUP_TIMEOUT,
     Batch,
+    RunClock,
     Task,
     checked_vertices,
     failure_reason,
@@ -514,7 +516,8 @@ class LabelPool:
         timeout = self.timeout if own else None
         normal = collections.deque(tasks)
         suspects: collections.deque[Task] = collections.deque()  # labelled alone, nothing else in flight
-        in_flight: dict[cf.Future, tuple[Task, float]] = {}
+        in_flight: dict[cf.Future, tuple[Task, float]] = {}  # future -> (task, clock() when submitted)
+        clock = RunClock()  # time stopped (kill -STOP, Ctrl-Z) is not a chunk's running time
         restarts = 0
 
         def submit(queue: collections.deque[Task]) -> None:
@@ -526,7 +529,7 @@ class LabelPool:
                                                       batch.clearance_limit)
             else:
                 fut = self._user_executor.submit(label_chunk, self.labeler, chunk, batch.clearance_limit)
-            in_flight[fut] = (queue.popleft(), time.monotonic())
+            in_flight[fut] = (queue.popleft(), clock())
 
         def harvest(fut: cf.Future) -> bool:
             """Record a finished future's result; False if it failed with BrokenProcessPool."""
@@ -580,14 +583,14 @@ class LabelPool:
                     fault("died")
                     continue
                 wait = None
-                if timeout is not None:
+                if timeout is not None:  # slices of POLL_S, so the clock sees when this process was stopped
                     oldest = min(t0 for _, t0 in in_flight.values())
-                    wait = max(0.0, oldest + timeout - time.monotonic())
+                    wait = min(POLL_S, max(0.0, oldest + timeout - clock()))
                 done, _ = cf.wait(in_flight, timeout=wait, return_when=cf.FIRST_COMPLETED)
                 broken = [fut for fut in done if not harvest(fut)]
                 if broken:
                     fault("died")
-                elif not done and timeout is not None:
+                elif not done and timeout is not None and clock() - oldest >= timeout:
                     fault("timeout")
         except BaseException:
             for fut in in_flight:

@@ -6,6 +6,8 @@ one-line failure reasons."""
 from __future__ import annotations
 
 import collections
+import threading
+import time
 from typing import NamedTuple
 
 import numpy as np
@@ -15,6 +17,30 @@ from neuralcol.utils.faults import fault_point
 
 STARTUP_TIMEOUT = 900.0  # seconds the workers may take to start (import, unpickle the labeler, load/compile kernels)
 MAX_REASON = 300  # characters of an exception message kept in a failure reason
+POLL_S = 1.0  # longest wait between two readings of a chunk timeout's RunClock
+
+
+class RunClock:
+    """Seconds of this process's running time for chunk timeouts: ``time.monotonic()`` less the time the process
+    was stopped (``kill -STOP``, Ctrl-Z, a paused container or VM), so pausing a long labeling does not pass for
+    a hung chunk when it goes on. The caller reads it at least every :data:`POLL_S` seconds while it waits; a
+    gap between two readings longer than ``max_gap`` counts, less ``POLL_S``, as stopped time. A gap from a
+    slow restart of the workers counts too: that only delays a timeout, never causes one. Thread-safe (the dask
+    pool reads it from its event thread)."""
+
+    def __init__(self, max_gap: float = 2 * POLL_S):
+        self.max_gap = float(max_gap)
+        self._lock = threading.Lock()
+        self._last = time.monotonic()
+        self._stopped = 0.0
+
+    def __call__(self) -> float:
+        with self._lock:
+            now = time.monotonic()
+            if now - self._last > self.max_gap:
+                self._stopped += now - self._last - POLL_S
+            self._last = now
+            return now - self._stopped
 
 
 def failure_reason(exc: BaseException) -> str:

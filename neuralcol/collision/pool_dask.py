@@ -34,7 +34,6 @@ import logging
 import os
 import queue
 import signal
-import time
 import uuid
 import weakref
 from concurrent.futures import CancelledError
@@ -178,7 +177,9 @@ class DaskSession:
             raise RuntimeError(f"LabelPool: the dask workers did not take the labeler ({why})") from exc
         self._finalizer.detach()
         self._finalizer = weakref.finalize(self, _shutdown, self.client, self.cluster, self.plugin, self.topic)
-        # start events of the chunks (timeout only): task number -> (monotonic time received, worker address)
+        # start events of the chunks (timeout only): task number -> (self.clock() when received, worker address);
+        # the clock leaves out time this process was stopped (kill -STOP, Ctrl-Z)
+        self.clock = common.RunClock()
         self.started: dict[int, tuple[float, str]] = {}
         if self.topic is not None:
             self.client.subscribe_topic(self.topic, self._on_start)
@@ -186,7 +187,7 @@ class DaskSession:
 
     def _on_start(self, event) -> None:  # runs in the client's event-loop thread
         msg = event[1]
-        self.started[int(msg["tid"])] = (time.monotonic(), str(msg["worker"]))
+        self.started[int(msg["tid"])] = (self.clock(), str(msg["worker"]))
 
     @property
     def address(self) -> str:
@@ -290,7 +291,7 @@ def run_dask(pool, session: DaskSession, v: np.ndarray, tasks: list[common.Task]
 
     def check_hung() -> None:
         """Cancel the chunks running for more than ``timeout`` seconds and restart their workers."""
-        now = time.monotonic()
+        now = session.clock()
         workers = None
         for fut, (task, tid) in list(in_flight.items()):
             t0, address = session.started.get(tid, (None, None))
@@ -309,7 +310,7 @@ def run_dask(pool, session: DaskSession, v: np.ndarray, tasks: list[common.Task]
             workers = None
             lost(task, f"timed out after {timeout:g} s")
 
-    poll = 1.0 if timeout is None else min(1.0, timeout / 4)
+    poll = common.POLL_S if timeout is None else min(common.POLL_S, timeout / 4)  # the clock read at least this often
     try:
         while normal or suspects or in_flight:
             common.submit_ready(normal, suspects, in_flight, limit, submit)
