@@ -113,9 +113,10 @@ def test_killed_three_times_then_resumed_equals_the_uninterrupted_run(reference,
     rounds = json.loads((run_dir / "detector_rounds.json").read_text())["rounds"]
     assert [r["round"] for r in rounds] == [0, 1], "died after round 1, while acquiring round 2's samples"
 
-    # 3. again: resumes from round 0's checkpoint, retrains round 1 (4 epochs: detector=tiny, method=active
-    #    retrains each round), finishes the acquisition, is killed in the middle of round 2's training
-    proc = _run(data, out, cache, fault="train_epoch:6")
+    # 3. again: resumes from round 1's checkpoint saved before its acquisition (round 1 is not trained again),
+    #    finishes the acquisition, is killed in round 2's second epoch (had it retrained round 1 first, it would
+    #    be killed there, before the acquisition's rows)
+    proc = _run(data, out, cache, fault="train_epoch:2")
     assert proc.returncode == -signal.SIGKILL, proc.stderr[-2000:]
     assert len(_dc(run_dir)["id"]) == n_init + 2 * n_aug
 
@@ -158,14 +159,19 @@ def test_a_sitting_stops_at_a_round_and_the_same_command_finishes_the_run(refere
     goes on from there; the finished run equals the uninterrupted one, and sittings.json holds both sittings."""
     base, cache, ((dc_ref, m_ref), _) = reference
     out, data = base / "sittings", [str(scape_dir.parent), "max_minutes=600"]
+    # 1. stops once round 0 is trained, before its acquisition; 2. goes on with that acquisition (no training
+    # first), stops at the end of round 0; 3. finishes
+    proc = _run(data, out, cache, stop_at="before its acquisition")
+    assert proc.returncode == 75, proc.stderr[-3000:]
+    assert "[sitting] stopped at round 0's training, before its acquisition (|D_c| = 120)" in proc.stdout
+    (run_dir,) = _run_dirs(out)
     proc = _run(data, out, cache, stop_at="the end of round 0")
     assert proc.returncode == 75, proc.stderr[-3000:]
     assert "[sitting] stopped at the end of round 0 (|D_c| = 180)" in proc.stdout
-    (run_dir,) = _run_dirs(out)
     assert not (run_dir / "metrics.json").exists()
     first = json.loads((run_dir / "sittings.json").read_text())["sittings"]
-    assert len(first) == 1 and first[0]["stopped_at"].startswith("the end of round 0")
-    assert "detector" in first[0]["stages"] and not first[0]["finished"]
+    assert len(first) == 2 and first[1]["stopped_at"].startswith("the end of round 0")
+    assert "detector" in first[0]["stages"] and not first[1]["finished"]
     proc = _run(data, out, cache)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert f"resuming the interrupted run in {run_dir}" in proc.stdout
@@ -174,5 +180,5 @@ def test_a_sitting_stops_at_a_round_and_the_same_command_finishes_the_run(refere
         np.testing.assert_array_equal(dc[k], dc_ref[k], err_msg=k)
     assert metrics == m_ref
     sittings = json.loads((run_dir / "metrics.json").read_text())["sittings"]
-    assert sittings["n"] == 2 and sittings["stage_seconds"]["detector"] > 0
-    assert json.loads((run_dir / "sittings.json").read_text())["sittings"][1]["finished"]
+    assert sittings["n"] == 3 and sittings["stage_seconds"]["detector"] > 0
+    assert json.loads((run_dir / "sittings.json").read_text())["sittings"][2]["finished"]

@@ -6,7 +6,9 @@ the elbow of accuracy vs data set size (Kneedle), otherwise (3) acquires ``n_aug
 (uniform for the baselines, Newton-projected + uniform for ``active``) and appends them to D_c, (4) switches
 to the update schedule (fine-tuning warm-started for ``active``: lr 1e-4, batch 1024, 50 epochs; training from
 scratch for the baselines) and (5) saves a checkpoint, so an interrupted run resumes after the last finished
-round with D_c truncated to the rows that checkpoint knew.
+round with D_c truncated to the rows that checkpoint knew. The trained round is also saved before its
+acquisition (which labels for about as long as the round trains at the paper's sizes): a run stopped while
+acquiring resumes with that acquisition (``on_train_start``), not by training the round again.
 """
 
 from __future__ import annotations
@@ -106,6 +108,7 @@ class RoundCallback(L.Callback):
         self.elbow: float | None = None
         self.seconds = {"label": 0.0, "train": 0.0, "project": 0.0}
         self.store_len: int | None = None
+        self.pending_acquisition = False  # the round is trained and saved; its acquisition has not finished
         self._epoch_t0 = 0.0
 
     @property
@@ -126,6 +129,7 @@ class RoundCallback(L.Callback):
                  "round_end_epoch": self.round_end_epoch, "rounds": self.rounds,
                  "finished": self.finished, "stopped_by": self.stopped_by, "elbow": self.elbow,
                  "seconds": dict(self.seconds), "store_len": self.store_len, "batch_size": self.dm.batch_size,
+                 "pending_acquisition": self.pending_acquisition,
                  "acquire": None if self.acquire is None else self.acquire.state_dict(),
                  "schedules": [asdict(self.bootstrap), asdict(self.update)]}
         return plain_values(state, f"{self.checkpoint_path.name}: RoundCallback state")
@@ -143,6 +147,7 @@ class RoundCallback(L.Callback):
         self.stopped_by, self.elbow = state["stopped_by"], state["elbow"]
         self.seconds = dict(state["seconds"])
         self.store_len = state["store_len"]
+        self.pending_acquisition = bool(state.get("pending_acquisition", False))  # absent before issue 42
         self.dm.batch_size = int(state["batch_size"])
         if self.acquire is not None:
             self.acquire.load_state_dict(state["acquire"])
@@ -161,6 +166,11 @@ class RoundCallback(L.Callback):
                 self.dm.refresh()
             self.round_start_epoch = 0
             self.round_end_epoch = self.bootstrap.epochs_for(self.dm.n_train) - 1
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        # (after Lightning restored the optimizer and the loops, so the acquisition's lr and re-initialisation stick)
+        if self.pending_acquisition:  # resumed from a trained round whose acquisition was cut off: do it now
+            self._acquire_next(trainer, pl_module, self.round_end_epoch)
 
     def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         fault_point("train_epoch")
@@ -224,29 +234,42 @@ class RoundCallback(L.Callback):
             self.finished = True
             self.stopped_by = "elbow" if self.round < self.max_rounds else "max_rounds"
             trainer.should_stop = True
-        else:
-            with sitting.held():  # the round's checkpoint (below) records the acquired rows: no stop before it
-                new = self.acquire(self.round + 1, pl_module.on_codes, self.dm.store, self.n_aug)
-            self.dm.append(new.z, new.pd, new.pd_sub, new.collides, new.subset, self.round + 1, new.origin)
-            self.seconds["label"] += new.label_seconds
-            self.seconds["project"] += new.project_seconds
-            record["next_round_acquisition"] = new.info
-            if "projection" in new.info:  # samples this round's detector projected (they join D_c next round)
-                record["projection"] = new.info["projection"]
-                self._log_projection(trainer, new.info["projection"], len(self.dm))
-            self.round += 1
-            sched = self.update
-            if sched.reinit:
-                pl_module.reinitialize(self.seed * 1000 + self.round)
-            pl_module.set_lr(sched.lr)
-            self.dm.batch_size = sched.batch_size
-            self.round_start_epoch = trainer.current_epoch + 1
-            self.round_end_epoch = trainer.current_epoch + sched.epochs_for(self.dm.n_train)
-            self.store_len = len(self.dm)
+        else:  # the trained round, saved before the (long) acquisition: a stop inside it resumes there
+            self.pending_acquisition = True
+            trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
+            sitting.check(f"round {self.round}'s training, before its acquisition (|D_c| = {len(self.dm)})")
+            self._acquire_next(trainer, pl_module, trainer.current_epoch)
+            return
         if self.on_round is not None:
             self.on_round(self.rounds, self.finished, echo=False)
         # weights_only here picks what is saved (the whole training state, optimizer and callbacks included); the
         # checkpoint holds plain values only and is read back with weights_only=True (stages/detector.py)
         trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
-        if not self.finished:  # a finished round, saved: a safe point of a time-budgeted sitting (max_minutes)
-            sitting.check(f"the end of round {self.round - 1} (|D_c| = {len(self.dm)})")
+
+    def _acquire_next(self, trainer: L.Trainer, pl_module, epoch: int) -> None:
+        """The next round's rows, acquired with the detector of the round that ended at ``epoch`` and appended to
+        D_c; the update schedule set; the checkpoint saved; the sitting stopped here if its time is spent."""
+        record = self.rounds[-1]
+        with sitting.held():  # its rows are only saved at its end (the uniform ones are cached as they are labeled)
+            new = self.acquire(self.round + 1, pl_module.on_codes, self.dm.store, self.n_aug)
+        self.dm.append(new.z, new.pd, new.pd_sub, new.collides, new.subset, self.round + 1, new.origin)
+        self.seconds["label"] += new.label_seconds
+        self.seconds["project"] += new.project_seconds
+        record["next_round_acquisition"] = new.info
+        if "projection" in new.info:  # samples this round's detector projected (they join D_c next round)
+            record["projection"] = new.info["projection"]
+            self._log_projection(trainer, new.info["projection"], len(self.dm))
+        self.round += 1
+        sched = self.update
+        if sched.reinit:
+            pl_module.reinitialize(self.seed * 1000 + self.round)
+        pl_module.set_lr(sched.lr)
+        self.dm.batch_size = sched.batch_size
+        self.round_start_epoch = epoch + 1
+        self.round_end_epoch = epoch + sched.epochs_for(self.dm.n_train)
+        self.store_len = len(self.dm)
+        self.pending_acquisition = False
+        if self.on_round is not None:
+            self.on_round(self.rounds, self.finished, echo=False)
+        trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
+        sitting.check(f"the end of round {self.round - 1} (|D_c| = {len(self.dm)})")
