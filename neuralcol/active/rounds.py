@@ -8,7 +8,8 @@ to the update schedule (fine-tuning warm-started for ``active``: lr 1e-4, batch 
 scratch for the baselines) and (5) saves a checkpoint, so an interrupted run resumes after the last finished
 round with D_c truncated to the rows that checkpoint knew. The trained round is also saved before its
 acquisition (which labels for about as long as the round trains at the paper's sizes): a run stopped while
-acquiring resumes with that acquisition (``on_train_start``), not by training the round again.
+acquiring resumes with that acquisition (``on_fit_start``, before Lightning builds the data loaders; the
+optimizer side in ``on_train_start``, after it restores the optimizer), not by training the round again.
 """
 
 from __future__ import annotations
@@ -166,11 +167,12 @@ class RoundCallback(L.Callback):
                 self.dm.refresh()
             self.round_start_epoch = 0
             self.round_end_epoch = self.bootstrap.epochs_for(self.dm.n_train) - 1
+        if self.pending_acquisition:  # resumed from a trained round whose acquisition was cut off: do it now,
+            self._acquire(trainer, pl_module, self.round_end_epoch)  # so the first loaders hold its rows
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        # (after Lightning restored the optimizer and the loops, so the acquisition's lr and re-initialisation stick)
-        if self.pending_acquisition:  # resumed from a trained round whose acquisition was cut off: do it now
-            self._acquire_next(trainer, pl_module, self.round_end_epoch)
+        if self.pending_acquisition:  # (acquired in on_fit_start) after Lightning restored the optimizer and the
+            self._start_round(trainer, pl_module)  # loops, so the new lr, re-initialisation and checkpoint stick
 
     def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         fault_point("train_epoch")
@@ -238,7 +240,8 @@ class RoundCallback(L.Callback):
             self.pending_acquisition = True
             trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
             sitting.check(f"round {self.round}'s training, before its acquisition (|D_c| = {len(self.dm)})")
-            self._acquire_next(trainer, pl_module, trainer.current_epoch)
+            self._acquire(trainer, pl_module, trainer.current_epoch)
+            self._start_round(trainer, pl_module)
             return
         if self.on_round is not None:
             self.on_round(self.rounds, self.finished, echo=False)
@@ -246,9 +249,9 @@ class RoundCallback(L.Callback):
         # checkpoint holds plain values only and is read back with weights_only=True (stages/detector.py)
         trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
 
-    def _acquire_next(self, trainer: L.Trainer, pl_module, epoch: int) -> None:
+    def _acquire(self, trainer: L.Trainer, pl_module, epoch: int) -> None:
         """The next round's rows, acquired with the detector of the round that ended at ``epoch`` and appended to
-        D_c; the update schedule set; the checkpoint saved; the sitting stopped here if its time is spent."""
+        D_c; the next round's number, epochs and batch size set."""
         record = self.rounds[-1]
         with sitting.held():  # its rows are only saved at its end (the uniform ones are cached as they are labeled)
             new = self.acquire(self.round + 1, pl_module.on_codes, self.dm.store, self.n_aug)
@@ -261,13 +264,18 @@ class RoundCallback(L.Callback):
             self._log_projection(trainer, new.info["projection"], len(self.dm))
         self.round += 1
         sched = self.update
-        if sched.reinit:
-            pl_module.reinitialize(self.seed * 1000 + self.round)
-        pl_module.set_lr(sched.lr)
         self.dm.batch_size = sched.batch_size
         self.round_start_epoch = epoch + 1
         self.round_end_epoch = epoch + sched.epochs_for(self.dm.n_train)
         self.store_len = len(self.dm)
+
+    def _start_round(self, trainer: L.Trainer, pl_module) -> None:
+        """After :meth:`_acquire`: the update schedule's weights and lr, the checkpoint saved, the sitting stopped
+        here if its time is spent."""
+        sched = self.update
+        if sched.reinit:
+            pl_module.reinitialize(self.seed * 1000 + self.round)
+        pl_module.set_lr(sched.lr)
         self.pending_acquisition = False
         if self.on_round is not None:
             self.on_round(self.rounds, self.finished, echo=False)
