@@ -211,3 +211,43 @@ def test_per_problem_constraint_with_rows():
     np.testing.assert_allclose(res.z[:, 0].numpy(), (t - 0.125).numpy(), atol=1e-5)
     torch.testing.assert_close(res.z[:, 1:], z_user[:, 1:])
     assert res.feasible.all()
+
+
+def test_handle_codes_in_batches_equals_one_batch_and_shows_progress(monkeypatch):
+    """handle_codes over 5 codes in batches of 2 gives the single batch's answer (the problems are independent);
+    with ``desc`` it counts the codes on a progress bar (issue 42: the paper-scale run's handler on 10^4 codes
+    said nothing for tens of minutes)."""
+    from collections import namedtuple
+
+    from neuralcol.handler.resolve import handle_codes
+    from neuralcol.utils import progress
+
+    out = namedtuple("Out", "logit")
+
+    class Half(torch.nn.Module):  # collides where z_0 > 0.5
+        def __init__(self):
+            super().__init__()
+            self.w = torch.nn.Parameter(torch.tensor([4.0]))
+
+        def forward(self, z):
+            return out(self.w * (z[:, 0] - 0.5))
+
+    bars = []
+    real = progress.progress_bar
+
+    def recording(*args, **kwargs):
+        bar = real(*args, **kwargs)
+        bars.append((kwargs, bar))
+        return bar
+
+    monkeypatch.setattr(progress, "progress_bar", recording)
+    z = torch.tensor([[0.9, 0.1], [0.7, -0.3], [0.2, 0.0], [0.95, 0.5], [0.6, 0.6]])
+    st = ALMSettings(margin=0.5)
+    lo, hi = torch.full((2,), -2.0), torch.full((2,), 2.0)
+    whole = handle_codes(Half(), z, lo, hi, st, batch_size=8)
+    batched = handle_codes(Half(), z, lo, hi, st, batch_size=2, desc="handling codes")
+    torch.testing.assert_close(batched.z, whole.z)
+    assert (whole.z[:, 0] <= 0.5 - 0.5 / 4 + 1e-4).all()  # logit <= -margin
+    (quiet, _), (shown, bar) = bars
+    assert quiet["disable"] and not shown["disable"] and shown["desc"] == "handling codes"
+    assert shown["total"] == 5 and bar.n == 5

@@ -28,7 +28,7 @@ def alm_settings(cfg) -> ALMSettings:
 
 
 def handle_codes(net: torch.nn.Module, z_user: torch.Tensor, box_lo: torch.Tensor, box_hi: torch.Tensor,
-                 settings: ALMSettings, objective=None, batch_size: int = 256) -> Resolution:
+                 settings: ALMSettings, objective=None, batch_size: int = 256, desc: str | None = None) -> Resolution:
     """Run the handler over many codes in batches (on the detector's device); results on the CPU.
 
     Args:
@@ -38,7 +38,10 @@ def handle_codes(net: torch.nn.Module, z_user: torch.Tensor, box_lo: torch.Tenso
         settings: ALM settings.
         objective: ``(z, idx) -> (len(idx),)`` over the N problems; default ``|Z - Z_user|^2 / 2``.
         batch_size: problems solved together.
+        desc: a progress bar over the codes with this label (None: none).
     """
+    from neuralcol.utils.progress import progress_bar
+
     dev = next(net.parameters()).device
     # float64 on a copy of the detector: in float32 the Armijo tests of nearly converged problems fail on
     # rounding noise (each burns every backtrack and stops unconverged); float64 halves the detector
@@ -47,11 +50,13 @@ def handle_codes(net: torch.nn.Module, z_user: torch.Tensor, box_lo: torch.Tenso
     z_user = z_user.double()
     objective = objective or LatentObjective(z_user.to(dev))
     parts = []
-    for start in range(0, len(z_user), batch_size):
-        rows = torch.arange(start, min(start + batch_size, len(z_user)), device=dev)
-        res = alm_resolve(lambda z, idx, rows=rows: objective(z, rows[idx]), lambda z: net(z).logit,
-                          z_user[rows.cpu()].to(dev), box_lo.to(dev), box_hi.to(dev), settings)
-        parts.append(Resolution(*(t.detach().cpu() for t in res)))
+    with progress_bar(total=len(z_user), desc=desc or "", unit="code", disable=desc is None) as bar:
+        for start in range(0, len(z_user), batch_size):
+            rows = torch.arange(start, min(start + batch_size, len(z_user)), device=dev)
+            res = alm_resolve(lambda z, idx, rows=rows: objective(z, rows[idx]), lambda z: net(z).logit,
+                              z_user[rows.cpu()].to(dev), box_lo.to(dev), box_hi.to(dev), settings)
+            parts.append(Resolution(*(t.detach().cpu() for t in res)))
+            bar.update(len(rows))
     if not parts:
         empty = torch.zeros(0)
         return Resolution(torch.zeros(0, z_user.shape[1]), *(empty.bool(),) * 3, empty.long(), empty, empty)

@@ -91,7 +91,8 @@ def evaluate_handler(net: torch.nn.Module, oracle: LatentOracle, z_user: torch.T
 
     def handle(rows: np.ndarray, margin: float) -> Resolution:
         return handle_codes(net, z_user[torch.as_tensor(rows)], space.box_lo, space.box_hi,
-                            replace(settings, margin=margin), batch_size=batch_size)
+                            replace(settings, margin=margin), batch_size=batch_size,
+                            desc=f"handling codes (margin {margin:g})")
 
     label_failures, labeled = [0], [0]
 
