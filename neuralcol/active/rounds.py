@@ -236,13 +236,17 @@ class RoundCallback(L.Callback):
             self.finished = True
             self.stopped_by = "elbow" if self.round < self.max_rounds else "max_rounds"
             trainer.should_stop = True
-        else:  # the trained round, saved before the (long) acquisition: a stop inside it resumes there
-            self.pending_acquisition = True
-            trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
-            sitting.check(f"round {self.round}'s training, before its acquisition (|D_c| = {len(self.dm)})")
-            self._acquire(trainer, pl_module, trainer.current_epoch)
-            self._start_round(trainer, pl_module)
+            self._save(trainer)
             return
+        # the trained round, saved before the (long) acquisition: a stop inside it resumes there
+        self.pending_acquisition = True
+        trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
+        sitting.check(f"round {self.round}'s training, before its acquisition (|D_c| = {len(self.dm)})")
+        self._acquire(trainer, pl_module, trainer.current_epoch)
+        self._start_round(trainer, pl_module)
+
+    def _save(self, trainer: L.Trainer) -> None:
+        """The round records (``on_round``) and the checkpoint."""
         if self.on_round is not None:
             self.on_round(self.rounds, self.finished, echo=False)
         # weights_only here picks what is saved (the whole training state, optimizer and callbacks included); the
@@ -277,7 +281,5 @@ class RoundCallback(L.Callback):
             pl_module.reinitialize(self.seed * 1000 + self.round)
         pl_module.set_lr(sched.lr)
         self.pending_acquisition = False
-        if self.on_round is not None:
-            self.on_round(self.rounds, self.finished, echo=False)
-        trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
+        self._save(trainer)
         sitting.check(f"the end of round {self.round - 1} (|D_c| = {len(self.dm)})")
