@@ -477,3 +477,27 @@ def test_pack_run_loads_without_cache_or_data(run_dir, trained, tmp_path, monkey
         check_package(out)
     with pytest.raises(UserInputError, match="no shipped model named 'nothing'.*scape"):
         neuralcol.pretrained("nothing")
+
+
+def test_explain_gap_on_a_finished_run(run_dir):
+    """research/issue42/explain_gap.py: the final detector re-scored on the U(Z) test set at logit 0 (undoing the
+    operating point folded into its bias) equals the run's own last-round figure; the D_c rows' splits partition the
+    store; the slope and the extrapolated size agree with an exact log-linear curve."""
+    import h5py
+    import numpy as np
+
+    from research.issue42.explain_gap import explain, scored, size_to_reach, slope
+
+    out = explain(run_dir, None)
+    assert out["rows"]["test"]["at logit 0"]["accuracy"] == pytest.approx(out["curve"]["accuracy"][-1], abs=1e-9)
+    with h5py.File(run_dir / "dc.h5", "r") as f:
+        n = int(f.attrs.get("committed", len(f["z"])))
+    assert out["rows"]["train all"]["n"] + out["rows"]["validation all"]["n"] == n
+    sizes = np.array([1e3, 2e3, 4e3, 8e3])
+    acc = 0.8 + 0.02 * np.log2(sizes / 1e3)
+    assert slope(sizes, acc) == pytest.approx(0.02)
+    assert size_to_reach(sizes, acc, 0.9) == pytest.approx(2.0 ** 5 * 1e3, rel=1e-6)
+    assert size_to_reach(sizes, acc, 0.8) is None and size_to_reach(sizes, 0.9 - acc, 0.95) is None
+    # an operating point at -1.5 folded into the bias: deployed logits 1.0, 2.0 are trained logits -0.5, 0.5
+    two = scored(np.array([1.0, 2.0]), np.array([False, True]), -1.5)
+    assert two["at logit 0"]["accuracy"] == 1.0 and two["at the operating point"]["accuracy"] == 0.5
