@@ -5,7 +5,8 @@ or any mix), groups the runs by data set and method (seeds are pooled: mean ± s
 (default: the first directory):
 
 * ``report.md`` and ``table3.csv``: the paper's Table 3 layout per data set — final data set size, accuracy
-  and false negative rate of each method, the equivalent data set size (the size supv_bd needs to reach the
+  and false negative rate of each method at logit 0 (and, for runs with an operating point, at it, in rows of their
+  own), the paper's own figures beside for the data sets of its Table 3, the equivalent data set size (the size supv_bd needs to reach the
   method's final accuracy, linearly interpolated on supv_bd's mean accuracy curve, as in the paper), and the
   detector's parameter count; then accuracy and FNR at every size, the collision handler's exact results,
   the speed figures and the stability checks;

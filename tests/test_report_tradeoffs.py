@@ -128,3 +128,36 @@ def test_without_model_size_json_nothing_is_marked_and_a_bad_one_is_named(sweep,
     (sweep / "model_size.json").write_text(json.dumps({"chosen": {"method": "supv_bd"}}))
     report_main([str(sweep), "--out", str(out), "--bench", str(tmp_path / "none.json")])
     assert "matches no configuration of toy" in (out / "report.md").read_text()
+
+
+def test_table3_reads_logit_0_with_the_operating_point_beside_and_the_papers_figures(tmp_path):
+    """A run that records its last round at an operating point (issue 41) is read at logit 0 in the curves and Table
+    3 (the paper's decision), with the operating point as rows of their own; a data set of the paper's Table 3 gets
+    the paper's figures beside (SCAPE's: 93.83 % / 5.15 %, equivalent size 663000)."""
+    import shutil
+
+    s = tmp_path / "sweep"
+    for seed, (op_acc, at0_acc) in enumerate(((0.70, 0.90), (0.72, 0.80))):
+        _run(s, str(seed), (8, 16), "active", seed, 0.9, 100, 1.0, [1], [True, True, True, True])
+        m = json.loads((s / str(seed) / "metrics.json").read_text())
+        m["dataset"]["name"] = "scape"
+        last = m["rounds"][-1]
+        last["at_logit_0"] = {"accuracy": at0_acc, "fnr": 0.25, "fpr": 0.1, "balanced_accuracy": 0.8,
+                              "majority_accuracy": 0.625}
+        last.update(accuracy=op_acc, fnr=0.05, threshold=-1.5)
+        (s / str(seed) / "metrics.json").write_text(json.dumps(m))
+    shutil.rmtree(s / "1" / "handling")  # an older run's files may be missing: no crash
+    out = tmp_path / "report"
+    report_main([str(s), "--out", str(out), "--bench", str(tmp_path / "none.json")])
+    text = (out / "report.md").read_text()
+    table = {r[0]: r[1] for r in _table(text, "### Table 3 layout")}
+    assert table["accuracy"] == "85.00% ± 7.07"  # logit 0: mean of 0.90 and 0.80, not the operating points'
+    assert table["false negative rate"] == "25.00% ± 0.00"
+    assert table["accuracy at the operating point"] == "71.00% ± 1.41 (2)"
+    assert table["false negative rate at the operating point"] == "5.00% ± 0.00 (2)"
+    assert table["paper: accuracy"] == "93.83%" and table["paper: false negative rate"] == "5.15%"
+    assert table["paper: equivalent supv_bd size"] == "663000"
+    curve = {r[0]: r[1] for r in _table(text, "### accuracy vs data set size")}
+    assert curve["8"].startswith("0.8500")  # the curve's last point at logit 0 too
+    rows = list(__import__("csv").DictReader((out / "table3.csv").open()))
+    assert float(rows[0]["operating_accuracy_mean"]) == pytest.approx(0.71)

@@ -124,8 +124,9 @@ def equivalent_size(sizes: list[int], accuracy: list[float], target: float) -> t
 
 
 def table3(runs: list[dict], agg: dict) -> list[dict]:
-    """Rows of the paper's Table 3: per data set and method, final size and accuracy/FNR (mean ± std over
-    seeds at each run's last round), equivalent supv_bd size and parameter count."""
+    """Rows of the paper's Table 3: per data set and method, final size and accuracy/FNR at logit 0 (mean ± std over
+    seeds at each run's last round), equivalent supv_bd size and parameter count; and accuracy/FNR at the operating
+    point over the runs that have one (``n_operating`` of them; None without)."""
     rows = []
     runs_of = by_dataset(runs)
     for ds in sorted(agg):
@@ -138,11 +139,17 @@ def table3(runs: list[dict], agg: dict) -> list[dict]:
             acc, fnr = [f["accuracy"] for f in final], [f["fnr"] for f in final]
             size = float(np.mean([f["dataset_size"] for f in final]))
             params = sorted({p for p in (detector_parameters(r) for r in mr) if p is not None})
+            ops = [f["operating_point"] for f in final if f.get("operating_point")]
             row = {"dataset": ds, "method": m, "n_seeds": len(mr), "final_size": size,
                    "accuracy_mean": seed_mean_std(acc)[0], "accuracy_std": seed_mean_std(acc)[1],
                    "fnr_mean": seed_mean_std(fnr)[0], "fnr_std": seed_mean_std(fnr)[1],
                    "equivalent_supv_bd_size": None, "equivalent_note": "",
-                   "detector_parameters": params[0] if len(params) == 1 else (params or None)}
+                   "detector_parameters": params[0] if len(params) == 1 else (params or None),
+                   "n_operating": len(ops), "operating_accuracy_mean": None, "operating_accuracy_std": None,
+                   "operating_fnr_mean": None, "operating_fnr_std": None}
+            if ops:
+                for key in ("accuracy", "fnr"):
+                    row[f"operating_{key}_mean"], row[f"operating_{key}_std"] = seed_mean_std([o[key] for o in ops])
             if ref_sizes and m != "supv_bd":
                 eq, note = equivalent_size(ref_sizes, ref_acc, row["accuracy_mean"])
                 row["equivalent_supv_bd_size"], row["equivalent_note"] = eq, note

@@ -1,6 +1,11 @@
 """Finding the runs of a report and what lies beside them; naming, ordering and grouping them.
 
 A run is the dict of its ``metrics.json`` (with detector rounds) plus ``_path`` (its directory) and ``_seed``.
+Every round's figures are read at logit 0, the decision each round is tested at and the paper's: a run with an
+operating point (``detector.operating_fnr``, issue 41) records its last round there and keeps logit 0's figures under
+``at_logit_0``; :func:`find_runs` swaps them, and keeps the operating point's under the round's ``operating_point``
+(accuracy, fnr, fpr, balanced_accuracy, threshold), so the curves do not mix two thresholds and Table 3 compares
+like with like (the operating point is a row of its own).
 Beside it: ``test_predictions.npz`` and ``handling/per_input.npz`` (written since issue 17; for the handler, the
 older ``handling/handling.npz`` holds the same two arrays), ``.hydra/config.yaml`` for the seed and detector
 sizes of older runs. In any directory given to the report, ``model_size.json``::
@@ -28,6 +33,30 @@ LABELS = {"supv": "Supv", "supv_bd": "Supv+bd", "active_paper": "Active+bd (pape
 CHOSEN_KEYS = ("dataset", "method", "n_components", "level2_dim", "state_dim", "hidden", "detector_width",
                "n_parameters")
 SIZE_KEYS = ("n_components", "level2_dim", "state_dim", "hidden", "detector_width")
+# the paper's Table 3 (accuracy and FNR of each method at its final data set size, and the equivalent Supv+bd size
+# of Active+bd), for the data sets it reports; active_paper and neuralcol's active are both compared with Active+bd
+PAPER_TABLE3 = {
+    "scape": {"final_size": 5.5e5, "equivalent_size": 6.63e5, "supv": (0.9181, 0.06914),
+              "supv_bd": (0.9282, 0.05576), "active": (0.9383, 0.05151)},
+    "swing": {"final_size": 4.5e4, "equivalent_size": 7.64e4, "supv": (0.9460, 0.01969),
+              "supv_bd": (0.9609, 0.01766), "active": (0.9638, 0.01485)},
+    "jump": {"final_size": 4.5e4, "equivalent_size": 7.02e4, "supv": (0.9347, 0.02713),
+             "supv_bd": (0.9500, 0.02644), "active": (0.9552, 0.02573)},
+    "skirt": {"final_size": 4e4, "equivalent_size": 7.71e4, "supv": (0.9660, 0.02056),
+              "supv_bd": (0.9795, 0.01956), "active": (0.9817, 0.01808)},
+    "hand": {"final_size": 5.5e5, "equivalent_size": 7.30e5, "supv": (0.9558, 0.03727),
+             "supv_bd": (0.9650, 0.03652), "active": (0.9692, 0.03582)},
+}
+
+
+def paper_figures(dataset_name: str, method_name: str) -> tuple[float, float] | None:
+    """The paper's (accuracy, FNR) for a method on a data set of its Table 3, or None."""
+    table = PAPER_TABLE3.get(dataset_name)
+    if table is None:
+        return None
+    return table.get("active" if method_name == "active_paper" else method_name)
+
+
 BENCH_KEYS = ("detector_us_per_sample_b1", "detector_us_per_sample_b4096", "exact_ms_per_sample",
               "neural_vs_exact_speedup")
 
@@ -42,6 +71,7 @@ def find_runs(dirs: list[Path]) -> list[dict]:
         for path in sorted(d.rglob("metrics.json")):
             m = json.loads(path.read_text())
             if m.get("rounds"):
+                m["rounds"] = [at_logit_0(r) for r in m["rounds"]]
                 m["_path"] = str(path.parent)
                 m["_seed"] = _seed(m)
                 runs.append(m)
@@ -49,6 +79,17 @@ def find_runs(dirs: list[Path]) -> list[dict]:
         raise UserInputError(f"no metrics.json with detector rounds below {[str(d) for d in dirs]}; run "
                              "`python -m experiments.run` first")
     return runs
+
+
+def at_logit_0(round_record: dict) -> dict:
+    """A round's record with its figures at logit 0 (see the module's docstring); unchanged without an operating
+    point."""
+    at0 = round_record.get("at_logit_0")
+    if not at0:
+        return round_record
+    op = {k: round_record[k] for k in ("accuracy", "fnr", "fpr", "balanced_accuracy") if k in round_record}
+    out = {k: v for k, v in round_record.items() if k not in ("at_logit_0", "threshold")}
+    return {**out, **at0, "operating_point": {**op, "threshold": round_record.get("threshold")}}
 
 
 def _seed(run: dict) -> int | None:

@@ -7,7 +7,16 @@ from collections import defaultdict
 import numpy as np
 
 from experiments.reporting.aggregate import label_cost_per_sample, monotone_handling, projection_runs, seed_mean_std
-from experiments.reporting.discover import by_dataset, dataset, label, method, method_rank, ordered_methods
+from experiments.reporting.discover import (
+    PAPER_TABLE3,
+    by_dataset,
+    dataset,
+    label,
+    method,
+    method_rank,
+    ordered_methods,
+    paper_figures,
+)
 
 HANDLING_KEYS = (("success_rate", "success"), ("resolved_rate", "resolved"), ("mean_pd_reduction", "PD reduction"),
                  ("mean_embedding_diff", "‖Z − Z_user‖"), ("seconds_per_mesh", "ms / mesh"))
@@ -87,9 +96,13 @@ def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) 
                          ("equivalent supv_bd size", eq),
                          ("detector parameters", lambda r: f"{r['detector_parameters']}")):
             lines.append(row(title, *(f(ds_rows[m]) if m in ds_rows else "—" for m in names)))
+        lines += operating_rows(ds_rows, names) + paper_rows(ds, names)
         lines += realistic_rows(ds_runs, names)
         ae = sorted({r["autoencoder"].get("n_parameters") for r in ds_runs} - {None})
-        lines += ["", "Equivalent size: the data set size supv_bd needs to reach the method's final mean accuracy "
+        lines += ["", "Accuracy and FNR at logit 0 (each round's decision, and the paper's); a run with an operating "
+                  "point (`detector.operating_fnr`) also at its threshold, over the seeds that have one (k)."
+                  + (" Paper: its Table 3 (Active+bd for both active methods)." if ds in PAPER_TABLE3 else ""),
+                  "", "Equivalent size: the data set size supv_bd needs to reach the method's final mean accuracy "
                   "(linear interpolation on supv_bd's mean accuracy curve; `>`: never reached within the sizes run, "
                   "`≤`: reached at the first size). Autoencoder parameters: "
                   f"{', '.join(str(a) for a in ae) or '—'}.", ""]
@@ -111,6 +124,33 @@ def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) 
     if bench:
         lines += bench_markdown(bench)
     return "\n".join(lines)
+
+
+def operating_rows(ds_rows: dict, names: list[str]) -> list[str]:
+    """Accuracy and FNR at the operating point, where a method's runs have one (``n_operating`` seeds)."""
+    if not any(ds_rows.get(m, {}).get("n_operating") for m in names):
+        return []
+
+    def cell(m: str, key: str) -> str:
+        r = ds_rows.get(m)
+        if not r or not r["n_operating"]:
+            return "—"
+        return pct_pm(r[f"operating_{key}_mean"], r[f"operating_{key}_std"]) + f" ({r['n_operating']})"
+
+    return [row(f"{title} at the operating point", *(cell(m, key) for m in names))
+            for key, title in (("accuracy", "accuracy"), ("fnr", "false negative rate"))]
+
+
+def paper_rows(ds: str, names: list[str]) -> list[str]:
+    """The paper's Table 3 beside the measured rows, for a data set it reports."""
+    if ds not in PAPER_TABLE3:
+        return []
+    t, figs = PAPER_TABLE3[ds], {m: paper_figures(ds, m) for m in names}
+    return [row("paper: data set size", *(f"{t['final_size']:.0f}" if figs[m] else "—" for m in names)),
+            row("paper: accuracy", *(f"{100 * figs[m][0]:.2f}%" if figs[m] else "—" for m in names)),
+            row("paper: false negative rate", *(f"{100 * figs[m][1]:.2f}%" if figs[m] else "—" for m in names)),
+            row("paper: equivalent supv_bd size",
+                *(f"{t['equivalent_size']:.0f}" if m in ("active", "active_paper") else "—" for m in names))]
 
 
 def bench_markdown(bench: dict) -> list[str]:
