@@ -6,10 +6,10 @@ or any mix), groups the runs by data set and method (seeds are pooled: mean ± s
 
 * ``report.md`` and ``table3.csv``: the paper's Table 3 layout per data set — final data set size, accuracy
   and false negative rate of each method at logit 0 (and, for runs with an operating point, at it, in rows of their
-  own), the paper's own figures beside for the data sets of its Table 3, the equivalent data set size (the size supv_bd needs to reach the
-  method's final accuracy, linearly interpolated on supv_bd's mean accuracy curve, as in the paper), and the
-  detector's parameter count; then accuracy and FNR at every size, the collision handler's exact results,
-  the speed figures and the stability checks;
+  own), the paper's own figures beside for the data sets of its Table 3, the equivalent data set size (the size
+  supv_bd needs to reach the method's final accuracy, linearly interpolated on supv_bd's mean accuracy curve, as in
+  the paper), and the detector's parameter count; then accuracy and FNR at every size, the collision handler's
+  exact results, the speed figures and the stability checks;
 * ``accuracy.png``, ``fnr.png``, ``handling.png``: accuracy, FNR and handling success (runs with
   ``handler.eval_every_round=true``) vs data set size, mean ± std bands over seeds (paper Figs. 3-5);
 * ``speed.png``: accuracy against cumulative labeling + training time per method, and neural vs exact

@@ -16,6 +16,7 @@ Run directory (one run)::
     test_predictions.npz        the detector on the U(Z) test set  realistic_predictions.npz  on the realistic set
     cascade.npz                 the detector's logits on the cascade's calibration set and their exact labels
     handling/  examples/  round_examples/  subdomains.png  speed_accuracy.png  tensorboard/<stage>/
+    round_detectors/round_<k>.pt  each round's detector as tested (detector.pt's format, at logit 0; issue 42)
     realistic_renders/          resolve on the realistic set, before and after, one input per kind of collision
     package.json  latent_space.pt   a packed run only (neuralcol.api.package: pretrained/<name>/)
 
@@ -62,6 +63,11 @@ class RunDir:
     handling = _File("handling")
     examples = _File("examples")
     round_examples = _File("round_examples")
+    round_detectors = _File("round_detectors")  # round_<k>.pt: each round's tested detector (paper Fig. 5 post hoc)
+
+    def round_detector(self, k: int) -> Path:
+        """``round_detectors/round_<k>.pt``: round k's detector, with the weights it was tested with."""
+        return self.round_detectors / f"round_{int(k)}.pt"
     subdomains_png = _File("subdomains.png")
     speed_accuracy_png = _File("speed_accuracy.png")  # throughput against accuracy and FNR (neuralcol.stages.speed)
     tensorboard = _File("tensorboard")

@@ -501,3 +501,51 @@ def test_explain_gap_on_a_finished_run(run_dir):
     # an operating point at -1.5 folded into the bias: deployed logits 1.0, 2.0 are trained logits -0.5, 0.5
     two = scored(np.array([1.0, 2.0]), np.array([False, True]), -1.5)
     assert two["at logit 0"]["accuracy"] == 1.0 and two["at the operating point"]["accuracy"] == 0.5
+
+
+def test_each_round_keeps_the_detector_it_was_tested_with(run_dir, trained):
+    """``round_detectors/round_<k>.pt`` (issue 42, for the handler's curve afterwards): one per round, and each
+    scores on the run's cached U(Z) test set exactly what the round recorded (the last round at logit 0)."""
+    import copy
+    import json
+
+    import h5py
+    import numpy as np
+
+    from neuralcol.nn.detector import load_detector
+    from neuralcol.rundir import RunDir
+    from research.speed_rerun import find_test_set
+
+    rounds = json.loads(RunDir(run_dir).detector_rounds.read_text())["rounds"]
+    assert len(rounds) > 1
+    files = sorted(RunDir(run_dir).round_detectors.glob("round_*.pt"))
+    assert [f.name for f in files] == [f"round_{r['round']}.pt" for r in rounds]
+    test = find_test_set(Path(trained.cfg.paths.cache_dir), trained.metrics["autoencoder"]["cache_key"],
+                         int(trained.cfg.detector.test_seed))
+    with h5py.File(test, "r") as f:
+        z, y = torch.as_tensor(f["z"][:]), f["collides"][:].astype(bool)
+    for r in rounds:
+        net = copy.deepcopy(trained.detector)
+        net.load_state_dict(load_detector(RunDir(run_dir).round_detector(r["round"]))[0].state_dict())
+        with torch.no_grad():
+            logit = trained.on_codes.__class__(net.eval(), trained.space)(z).logit.numpy()
+        assert float(np.mean((logit > 0) == y)) == pytest.approx(r.get("at_logit_0", r)["accuracy"], abs=1e-12)
+
+
+def test_handling_curve_from_the_saved_rounds(run_dir, trained):
+    """research/issue42/handling_curve.py: one point per round; the last round's saved detector guides the handler
+    exactly as the run's final ``detector.pt`` does (the tiny run has no operating point: the same network)."""
+    from neuralcol.handler.resolve import alm_settings
+    from neuralcol.samples.oracle import LatentOracle
+    from neuralcol.stages.handler import evaluate_handler
+    from research.issue42.handling_curve import curve, handler_inputs
+
+    assert trained.metrics["detector"].get("operating_point") is None
+    out = curve(run_dir, n_inputs=4, workers=0)
+    assert [p["round"] for p in out["points"]] == [r["round"] for r in trained.metrics["rounds"]]
+    assert out["missing_rounds"] == [] and out["n_inputs"] == 4
+    z, pd = handler_inputs(trained, 4)
+    m, _ = evaluate_handler(trained.on_codes, LatentOracle(trained.space, trained.label_pool()), z, pd,
+                            alm_settings(trained.cfg.handler.alm), int(trained.cfg.handler.batch_size))
+    assert out["points"][-1]["success_rate"] == m["success_rate"]
+    assert out["points"][-1]["mean_pd_reduction"] == pytest.approx(m["mean_pd_reduction"], nan_ok=True)

@@ -4,9 +4,9 @@ Inputs: the latent space and an exact oracle. Shared caches under ``<cache_dir>/
 latent space + labeler settings): the test set of uniform samples (one for every method and seed) and each
 seed's pool of labeled uniform samples. Per run, in the run directory: ``dc.h5`` (D_c),
 ``checkpoints/detector.ckpt`` (the training state after the last finished round, for resuming),
-``detector_rounds.json`` (the round records, rewritten after every round), ``detector.pt`` (the final
-detector) and ``test_predictions.npz`` (the final detector on the test set, :func:`predict_test_set`). See
-``docs/detector.md``.
+``detector_rounds.json`` (the round records, rewritten after every round), ``round_detectors/round_<k>.pt`` (each
+round's detector as tested), ``detector.pt`` (the final detector) and ``test_predictions.npz`` (the final detector
+on the test set, :func:`predict_test_set`). See ``docs/detector.md``.
 """
 
 from __future__ import annotations
@@ -266,6 +266,10 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
         write_json_atomic(rounds_path, {"finished": finished, "rounds": rounds, "summary": summary()})
         if not echo:
             return
+        # the round's detector as it was just tested (the best validation epoch's weights): the handler's success
+        # against |D_c| (paper Fig. 5) can then be measured afterwards, research/issue42/handling_curve.py
+        rd.round_detectors.mkdir(exist_ok=True)
+        save_detector(rd.round_detector(last["round"]), module.net, det, method, pd_unit)
         if logger is not None:
             for key in ("accuracy", "fnr", "fpr", "balanced_accuracy", "base_rate"):
                 logger.experiment.add_scalar(f"test/{key}", last[key], global_step=last["dataset_size"])
