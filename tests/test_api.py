@@ -493,6 +493,8 @@ def test_explain_gap_on_a_finished_run(run_dir):
     with h5py.File(run_dir / "dc.h5", "r") as f:
         n = int(f.attrs.get("committed", len(f["z"])))
     assert out["rows"]["train all"]["n"] + out["rows"]["validation all"]["n"] == n
+    at_fnr = out["rows"]["test"]["at the paper's FNR"]  # a threshold chosen on held-out rows: lower misses less
+    assert at_fnr["fnr"] <= out["rows"]["test"]["at logit 0"]["fnr"] or at_fnr["threshold"] >= 0
     sizes = np.array([1e3, 2e3, 4e3, 8e3])
     acc = 0.8 + 0.02 * np.log2(sizes / 1e3)
     assert slope(sizes, acc) == pytest.approx(0.02)
