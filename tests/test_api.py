@@ -551,3 +551,26 @@ def test_handling_curve_from_the_saved_rounds(run_dir, trained):
                             alm_settings(trained.cfg.handler.alm), int(trained.cfg.handler.batch_size))
     assert out["points"][-1]["success_rate"] == m["success_rate"]
     assert out["points"][-1]["mean_pd_reduction"] == pytest.approx(m["mean_pd_reduction"], nan_ok=True)
+
+
+def test_round_gap_scores_a_saved_round_and_refuses_a_wrong_test_set(run_dir, trained, capsys, tmp_path):
+    """research/issue42/round_gap.py on round 1 of the tiny run: the saved detector's test accuracy is the round's
+    record (the script checks it and stops on a mismatch, e.g. another latent space's test set)."""
+    import json
+    import shutil
+
+    from research.issue42.round_gap import main as round_gap
+
+    cache = trained.cfg.paths.cache_dir
+    assert round_gap([str(run_dir), "1", "--paper-fnr", "0.2", "--cache-dir", cache]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["test"]["accuracy"] == pytest.approx(trained.metrics["rounds"][1]["accuracy"], abs=1e-12)
+    assert out["train uniform"]["n"] > 0 and out["held-out uniform"]["n"] > 0
+    # a copy of the run whose round 1 record claims another accuracy: the script names the mismatch
+    bad = tmp_path / "bad_run"
+    shutil.copytree(run_dir, bad, ignore=shutil.ignore_patterns(".run.lock"))
+    rounds = json.loads((bad / "detector_rounds.json").read_text())
+    rounds["rounds"][1]["accuracy"] += 0.01
+    (bad / "detector_rounds.json").write_text(json.dumps(rounds))
+    with pytest.raises(SystemExit, match="not this run's test set"):
+        round_gap([str(bad), "1", "--cache-dir", cache])
