@@ -29,13 +29,10 @@ import h5py
 import numpy as np
 import torch
 
+from experiments.reporting.discover import paper_figures
 from neuralcol.api.run import load_run
 from neuralcol.metrics.detection import fnr_threshold
 from neuralcol.samples.store import VAL_EVERY, Origin
-
-# Table 3 (SCAPE) of the paper: accuracy, FNR, final size per method
-PAPER = {"active": (0.9383, 0.0515), "active_paper": (0.9383, 0.0515), "supv_bd": (0.9282, 0.0558),
-         "supv": (0.9181, 0.0691)}
 
 
 def slope(sizes: np.ndarray, values: np.ndarray) -> float | None:
@@ -114,7 +111,8 @@ def fit_on_rows(run_dir: Path, threshold: float, paper_fnr: float | None = None,
     return out
 
 
-def explain(run_dir: Path, gbt: dict | None) -> dict:
+def explain(run_dir: Path, gbt: dict | None, paper: tuple[float, float] | None = None) -> dict:
+    """``paper``: the (accuracy, FNR) to compare with; None: the paper's Table 3 for the run's data set and method."""
     metrics = json.loads((run_dir / "metrics.json").read_text())
     method = metrics["detector"].get("method") if isinstance(metrics.get("detector"), dict) else None
     if method is None:
@@ -122,10 +120,11 @@ def explain(run_dir: Path, gbt: dict | None) -> dict:
 
         method = str(OmegaConf.load(run_dir / ".hydra" / "config.yaml").method.name)
     c = curve(run_dir)
-    target = PAPER.get(method, (None, None))[0]
+    paper = paper or paper_figures(metrics["dataset"]["name"], method)  # Table 3 (experiments.reporting)
+    target = None if paper is None else paper[0]
     out = {"run": run_dir.name, "method": method, "curve": c,
-           "rows": fit_on_rows(run_dir, operating_threshold(metrics), PAPER.get(method, (None, None))[1]),
-           "test_accuracy": c["accuracy"][-1], "test_fnr": c["fnr"][-1], "paper": PAPER.get(method),
+           "rows": fit_on_rows(run_dir, operating_threshold(metrics), None if paper is None else paper[1]),
+           "test_accuracy": c["accuracy"][-1], "test_fnr": c["fnr"][-1], "paper": paper,
            "size_to_paper_accuracy": None if target is None else size_to_reach(np.array(c["sizes"]),
                                                                                  np.array(c["accuracy"]), target)}
     if gbt:
