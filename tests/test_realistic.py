@@ -129,3 +129,19 @@ def test_report_real_meshes_block():
     assert not any("mesh detector" in r for r in table)
     assert not any("resolve" in r for r in table)  # no handler results: no row
     assert realistic_rows([{"detector": {"method": "supv"}}], ["supv"]) == []
+
+
+def test_report_real_meshes_small_displacement_is_shown():
+    """A median displacement of 4.3e-6 of the diagonal (neuralcol_s0's) printed as ``0.00%`` hid it: two
+    significant digits for that row, two decimals for the rates beside it."""
+    from experiments.reporting.markdown import realistic_rows
+
+    def run(disp):
+        return {"detector": {"method": "active"},
+                "realistic": {"n_clear": 314, "detection": {"accuracy": 0.8, "fnr": 0.2},
+                              "round_trip": {"agreement": 0.8},
+                              "handling": {"verified": {"resolved_rate": 0.97}, "displacement_median_frac": disp}}}
+
+    table = [r for r in realistic_rows([run(4.3e-6), run(4.5e-6)], ["active"]) if r.startswith("|")]
+    assert "| real meshes: resolve, median displacement (% diag) | 0.00044% ± 1.4e-05 |" in table
+    assert "| real meshes: resolve, collision-free (verified) | 97.00% ± 0.00 |" in table

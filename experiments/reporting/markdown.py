@@ -20,7 +20,7 @@ from experiments.reporting.discover import (
 
 HANDLING_KEYS = (("success_rate", "success"), ("resolved_rate", "resolved"), ("mean_pd_reduction", "PD reduction"),
                  ("mean_embedding_diff", "‖Z − Z_user‖"), ("seconds_per_mesh", "ms / mesh"))
-# (title, path into metrics, percent?); the separate mesh detector's entries of runs before issue 41
+# (title, path into metrics, percent? ("small": a percentage to two significant digits, for values far under 0.01 %)); the separate mesh detector's entries of runs before issue 41
 # (metrics "mesh_detector", realistic "detection_mesh") are not reported
 REALISTIC_ROWS = (
     ("real meshes: accuracy, detector", ("realistic", "detection", "accuracy"), True),
@@ -30,7 +30,7 @@ REALISTIC_ROWS = (
      ("realistic", "handling", "detector_only", "resolved_rate"), True),
     ("real meshes: resolve, collision-free (verified)", ("realistic", "handling", "verified", "resolved_rate"), True),
     ("real meshes: resolve, median displacement (% diag)",
-     ("realistic", "handling", "displacement_median_frac"), True),
+     ("realistic", "handling", "displacement_median_frac"), "small"),
     ("real meshes: contact repair alone, collision-free", ("realistic", "handling", "repair_only", "resolved_rate"),
      True),
 )
@@ -51,9 +51,9 @@ def pm(mean: float, std: float, n: int, fmt=".4f") -> str:
     return f"{f(mean)} ± {f(std)}" if n > 1 else f(mean)
 
 
-def pct_pm(mean: float, std: float) -> str:
-    """``62.00% ± 1.41``."""
-    return f"{100 * mean:.2f}% ± {100 * std:.2f}"
+def pct_pm(mean: float, std: float, fmt: str = ".2f") -> str:
+    """``62.00% ± 1.41`` (``fmt=".2g"``: ``0.00043% ± 0``, for fractions too small for two decimals)."""
+    return f"{100 * mean:{fmt}}% ± {100 * std:{fmt}}"
 
 
 def cell_text(values: list[float], n_seeds: int) -> str:
@@ -215,7 +215,7 @@ def realistic_rows(runs: list[dict], names: list[str]) -> list[str]:
                 cells.append("—")
                 continue
             mean, std = seed_mean_std(vals)
-            cells.append(pct_pm(mean, std) if pct else f"{mean:.3g} ± {std:.2g}")
+            cells.append(pct_pm(mean, std, ".2g" if pct == "small" else ".2f") if pct else f"{mean:.3g} ± {std:.2g}")
         if any(c != "—" for c in cells):
             out.append(row(title, *cells))
     n = [r["realistic"]["n_clear"] for r in runs if r.get("realistic")]
