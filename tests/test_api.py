@@ -486,9 +486,12 @@ def test_explain_gap_on_a_finished_run(run_dir):
     import h5py
     import numpy as np
 
-    from research.issue42.explain_gap import explain, scored, size_to_reach, slope
+    from research.issue42.explain_gap import explain, scored, size_to_reach, slope, table
 
     out = explain(run_dir, None, paper=(0.9383, 0.0515))  # (proc_hand is not in the paper's Table 3)
+    head, _, line = table([out]).splitlines()  # one cell per column (a stray "test" column shifted the rest)
+    acquired = out["rows"]["train acquired"]["at logit 0"]["accuracy"]
+    assert head.count(" | ") == line.count(" | ") and f"| {acquired:.4f} | " in line
     assert out["rows"]["test"]["at logit 0"]["accuracy"] == pytest.approx(out["curve"]["accuracy"][-1], abs=1e-9)
     with h5py.File(run_dir / "dc.h5", "r") as f:
         n = int(f.attrs.get("committed", len(f["z"])))

@@ -27,17 +27,13 @@ from neuralcol.metrics.detection import fnr_threshold
 from neuralcol.nn.detector import load_detector
 from neuralcol.rundir import RunDir
 from neuralcol.samples.store import VAL_EVERY, Origin
+from research.issue42.explain_gap import rates
 from research.speed_rerun import find_test_set
 
 
 def logits(net, z: np.ndarray) -> np.ndarray:
     with torch.no_grad():
         return torch.cat([net(c).logit for c in torch.as_tensor(z).split(8192)]).numpy()
-
-
-def rates(logit: np.ndarray, y: np.ndarray, t: float = 0.0) -> dict:
-    pred = logit > t
-    return {"n": int(len(y)), "accuracy": float(np.mean(pred == y)), "fnr": float(np.mean(~pred[y]))}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -67,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         z, y = f["z"][:size], f["collides"][:size].astype(bool)
         rid, origin = f["id"][:size], f["origin"][:size]
     lt, lc = logits(net, zt), logits(net, z)
-    test = rates(lt, yt)
+    test = {"n": int(len(yt)), **rates(lt, yt)}
     if abs(test["accuracy"] - record.get("at_logit_0", record)["accuracy"]) > 1e-9:
         raise SystemExit(f"{test_path}: round {a.round}'s detector scores {test['accuracy']} there, its record "
                          f"{record['accuracy']}: not this run's test set")
@@ -78,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
                     ("held-out uniform", val & (origin == Origin.UNIFORM)),
                     ("train acquired", ~val & (origin == Origin.PROJECTED))):
         if m.any():
-            out[name] = rates(lc[m], y[m])
+            out[name] = {"n": int(m.sum()), **rates(lc[m], y[m])}
     held = val & (origin == Origin.UNIFORM)
     t = fnr_threshold(lc[held], y[held], a.paper_fnr)
     out["test at the paper's FNR"] = {"threshold": t, **rates(lt, yt, t)}
