@@ -145,3 +145,26 @@ def test_report_real_meshes_small_displacement_is_shown():
     table = [r for r in realistic_rows([run(4.3e-6), run(4.5e-6)], ["active"]) if r.startswith("|")]
     assert "| real meshes: resolve, median displacement (% diag) | 0.00044% ± 1.4e-05 |" in table
     assert "| real meshes: resolve, collision-free (verified) | 97.00% ± 0.00 |" in table
+
+
+def test_report_wall_time_per_stage():
+    """Table 3's wall time per stage (issue 42): minutes summed over sittings, mean ± std over the seeds of each
+    method; a stage under half a minute in every run has no row but stays in the total; runs without ``sittings``
+    (before issue 42) give no table."""
+    from experiments.reporting.markdown import wall_time_markdown
+
+    def run(m, detector_s, minutes, n=2):
+        return {"detector": {"method": m},
+                "sittings": {"n": n, "minutes": minutes,
+                             "stage_seconds": {"data": 12.0, "latent": 600.0, "detector": detector_s}}}
+
+    lines = wall_time_markdown([run("supv", 3600.0, 72.0), run("active", 5400.0, 102.0),
+                                run("active", 6600.0, 122.0, 3), {"detector": {"method": "supv"}}],
+                               ["supv", "active"])
+    table = [r for r in lines if r.startswith("|")]
+    assert table[0] == "| stage | Supv | Active+bd (ours) |"
+    assert "| detector (labeling + training, all rounds) | 60.0 | 100.0 ± 14.1 |" in table
+    assert "| autoencoder (latent space) | 10.0 | 10.0 ± 0.0 |" in table
+    assert not any(r.startswith("| data") for r in table)  # 12 s everywhere
+    assert "| **total** | 72.0 | 112.0 ± 14.1 |" in table and "| sittings | 2 | 2.5 ± 0.71 |" in table
+    assert wall_time_markdown([{"detector": {"method": "supv"}}], ["supv"]) == []

@@ -20,7 +20,8 @@ from experiments.reporting.discover import (
 
 HANDLING_KEYS = (("success_rate", "success"), ("resolved_rate", "resolved"), ("mean_pd_reduction", "PD reduction"),
                  ("mean_embedding_diff", "‖Z − Z_user‖"), ("seconds_per_mesh", "ms / mesh"))
-# (title, path into metrics, percent? ("small": a percentage to two significant digits, for values far under 0.01 %)); the separate mesh detector's entries of runs before issue 41
+# (title, path into metrics, percent? ("small": a percentage to two significant digits, for values far under
+# 0.01 %)); the separate mesh detector's entries of runs before issue 41
 # (metrics "mesh_detector", realistic "detection_mesh") are not reported
 REALISTIC_ROWS = (
     ("real meshes: accuracy, detector", ("realistic", "detection", "accuracy"), True),
@@ -119,6 +120,7 @@ def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) 
         lines += [handling_markdown(ds_runs)]
         lines += latent_markdown(ds_runs)
         lines += speed_markdown(ds, ds_runs, agg)
+        lines += wall_time_markdown(ds_runs, names)
         lines += stability_markdown(ds, agg)
         lines += projection_markdown(ds_runs)
     if bench:
@@ -310,6 +312,38 @@ def speed_markdown(ds: str, runs: list[dict], agg: dict) -> list[str]:
     return lines + [""]
 
 
+STAGE_TITLES = {"data": "data (meshes, ACAP)", "latent": "autoencoder (latent space)",
+                "open_pool": "U(Z) test set + labeling pool", "detector": "detector (labeling + training, all rounds)",
+                "calibration": "operating point", "handler": "handler evaluation", "realistic": "real meshes",
+                "cascade": "certified cascade", "speed": "speed against accuracy"}
+
+
+def wall_time_markdown(runs: list[dict], names: list[str]) -> list[str]:
+    """Wall time per stage (``metrics.json`` -> ``sittings``: seconds summed over the sittings a run took), mean ±
+    std over the seeds of each method, in minutes; nothing when no run recorded its sittings."""
+    timed = [r for r in runs if (r.get("sittings") or {}).get("stage_seconds")]
+    if not timed:
+        return []
+    stages = list(dict.fromkeys(k for r in timed for k in r["sittings"]["stage_seconds"]))
+    lines = ["### wall time per stage (minutes, summed over sittings; mean ± std over seeds)", "",
+             row("stage", *(label(m) for m in names)), "|---|" + "---:|" * len(names)]
+
+    def cell(m: str, value, fmt: str = ".1f") -> str:
+        vals = [v for r in timed if method(r) == m for v in [value(r)] if v is not None]
+        return pm(*seed_mean_std(vals), len(vals), fmt) if vals else "—"
+
+    for k in stages:
+        if all(r["sittings"]["stage_seconds"].get(k, 0.0) < 30 for r in timed):
+            continue  # under half a minute everywhere: in the total
+        lines.append(row(STAGE_TITLES.get(k, k), *(cell(m, lambda r, k=k: r["sittings"]["stage_seconds"].get(k, 0.0)
+                                                         / 60) for m in names)))
+    lines.append(row("**total**", *(cell(m, lambda r: r["sittings"].get("minutes")) for m in names)))
+    lines.append(row("sittings", *(cell(m, lambda r: r["sittings"].get("n"), ".2g") for m in names)))
+    return lines + ["", "Stages under half a minute in every run are left out of the rows (not of the total); a "
+                    "stage near 0 took its result from the cache (`paths.cache_dir`), paid by an earlier run. A "
+                    "run that shared its machine with another ran slower than it would alone.", ""]
+
+
 def stability_markdown(ds: str, agg: dict) -> list[str]:
     """Stability table of one data set: spread across seeds, handling success monotone in size."""
     lines = ["### stability (spread across seeds; handling success vs size)", "",
@@ -323,5 +357,5 @@ def stability_markdown(ds: str, agg: dict) -> list[str]:
         mo = mono.get((ds, m))
         mtxt = "— (no per-round handling; `handler.eval_every_round=true`)" if mo is None else \
             ("yes" if mo[0] else f"no ({mo[1]} drop{'s' if mo[1] > 1 else ''} > 1 point)")
-        lines.append(row(label(m), n, f"{max(stds) if stds else float('nan'):.4f}", mtxt))
+        lines.append(row(label(m), n, f"{max(stds):.4f}" if stds else "— (one seed)", mtxt))
     return lines + [""]
