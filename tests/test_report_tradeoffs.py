@@ -161,3 +161,31 @@ def test_table3_reads_logit_0_with_the_operating_point_beside_and_the_papers_fig
     assert curve["8"].startswith("0.8500")  # the curve's last point at logit 0 too
     rows = list(__import__("csv").DictReader((out / "table3.csv").open()))
     assert float(rows[0]["operating_accuracy_mean"]) == pytest.approx(0.71)
+
+
+def test_curves_mark_the_papers_table3_figure(tmp_path, monkeypatch):
+    """accuracy.png / fnr.png: each method's curve with the paper's Table 3 figure at its final size, once for the
+    two active methods (both are its Active+bd); the band is the sample std over seeds (the tables' ddof 1)."""
+    from contextlib import contextmanager
+
+    import experiments.reporting.plots as plots
+
+    kept = []
+    real_figure = plots.figure
+
+    @contextmanager
+    def keep(path, *a):
+        with real_figure(path, *a) as axes:
+            kept.append(axes[0][0])
+            yield axes
+
+    monkeypatch.setattr(plots, "figure", keep)
+    agg = {"scape": {m: {2e5: {"accuracy": [0.91, 0.93], "fnr": [0.1, 0.1]}} for m in ("active", "active_paper",
+                                                                                      "supv")}}
+    for metric, paper in (("accuracy", {0.9383, 0.9181}), ("fnr", {0.05151, 0.06914})):
+        assert plots.plot(agg, metric, tmp_path / f"{metric}.png")
+        stars = [ln for ln in kept[-1].get_lines() if ln.get_marker() == "*"]
+        assert {float(ln.get_ydata()[0]) for ln in stars} == paper and len(stars) == 2
+        assert all(float(ln.get_xdata()[0]) == 5.5e5 for ln in stars)
+    band = kept[0].collections[0].get_paths()[0].vertices[:, 1]
+    assert band.min() == pytest.approx(0.92 - np.std([0.91, 0.93], ddof=1))

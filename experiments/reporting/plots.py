@@ -7,8 +7,16 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.reporting.aggregate import latent_key
-from experiments.reporting.discover import dataset, label, method, method_order, ordered_methods
+from experiments.reporting.aggregate import latent_key, seed_mean_std
+from experiments.reporting.discover import (
+    PAPER_TABLE3,
+    dataset,
+    label,
+    method,
+    method_order,
+    ordered_methods,
+    paper_figures,
+)
 from neuralcol.metrics.breakdown import PD_BIN_EDGES, PD_BIN_NAMES, mean_std
 
 N_COLLIDING_BINS = sum(e >= 0 for e in PD_BIN_EDGES)  # bins above PD 0: where the handler's inputs lie
@@ -52,23 +60,36 @@ def _no_data(ax, text: str) -> None:
 
 
 # ------------------------------------------------------------------------------------- per method
+PAPER_NAMES = {"supv": "Supv", "supv_bd": "Supv+bd", "active": "Active+bd", "active_paper": "Active+bd"}
+
+
 def plot(agg: dict, metric: str, path: Path) -> bool:
-    """``metric`` vs data set size per method, mean ± std band, one panel per data set; False if no data."""
+    """``metric`` vs data set size per method, mean ± std band (sample std over seeds), one panel per data set;
+    accuracy and FNR also show the paper's Table 3 figure of each method at its final size (a star in the method's
+    colour); False if no data."""
     datasets = [ds for ds in sorted(agg) if any(c[metric] for m in agg[ds].values() for c in m.values())]
     if not datasets:
         return False
+    column = {"accuracy": 0, "fnr": 1}.get(metric)
     with figure(path, 1, len(datasets), (4.5 * len(datasets), 3.4)) as axes:
         for ax, ds in zip(axes[0], datasets):
+            shown = set()
             for m in ordered_methods(agg[ds]):
                 sizes = [s for s in sorted(agg[ds][m]) if agg[ds][m][s][metric]]
                 if not sizes:
                     continue
-                mean = np.array([np.mean(agg[ds][m][s][metric]) for s in sizes])
-                std = np.array([np.std(agg[ds][m][s][metric]) for s in sizes])
-                ax.plot(sizes, mean, marker="o", label=label(m))
+                mean, std = np.array([seed_mean_std(agg[ds][m][s][metric]) for s in sizes]).T
+                (line,) = ax.plot(sizes, mean, marker="o", label=label(m))
                 ax.fill_between(sizes, mean - std, mean + std, alpha=0.2)
+                paper = paper_figures(ds, m) if column is not None else None
+                if paper is not None and PAPER_NAMES.get(m) not in shown:
+                    shown.add(PAPER_NAMES.get(m))
+                    ax.plot([PAPER_TABLE3[ds]["final_size"]], [paper[column]], marker="*", markersize=13,
+                            linestyle="none", color=line.get_color(), markeredgecolor="black",
+                            label=f"paper: {PAPER_NAMES.get(m, m)}")
             _style(ax, "data set size |D_c|", METRIC_LABELS[metric], ds)
-            ax.legend()
+            ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4))  # 2e5..5.5e5 overlapped in full
+            ax.legend(fontsize="small")
     return True
 
 
