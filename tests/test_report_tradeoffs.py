@@ -189,3 +189,24 @@ def test_curves_mark_the_papers_table3_figure(tmp_path, monkeypatch):
         assert all(float(ln.get_xdata()[0]) == 5.5e5 for ln in stars)
     band = kept[0].collections[0].get_paths()[0].vertices[:, 1]
     assert band.min() == pytest.approx(0.92 - np.std([0.91, 0.93], ddof=1))
+
+
+def test_equivalent_size_only_against_supv_bd_on_the_same_latent_space(tmp_path):
+    """Table 3's equivalent supv_bd size reads supv_bd's curve on the method's own latent space (its own U(Z) test
+    set): issue 42 runs neuralcol's default (PCA space) beside the paper's configuration (bilevel autoencoder), and
+    pooling both supv_bd curves, or reading the other space's, compares accuracies of two different test sets."""
+    s = tmp_path / "sweep"
+    for name, m, acc, key in (("act", "active", 0.9, "A"), ("bdA", "supv_bd", 0.95, "A"),
+                              ("bdB", "supv_bd", 0.7, "B"), ("sup", "supv", 0.8, "C")):
+        _run(s, name, (8, 16), m, 0, acc, 100, 1.0, [1], [True, True, True, True])
+        metrics = json.loads((s / name / "metrics.json").read_text())
+        metrics["autoencoder"]["cache_key"] = key
+        (s / name / "metrics.json").write_text(json.dumps(metrics))
+    out = tmp_path / "report"
+    report_main([str(s), "--out", str(out), "--bench", str(tmp_path / "none.json")])
+    rows = {r["method"]: r for r in __import__("csv").DictReader((out / "table3.csv").open())}
+    # active 0.9 on A's supv_bd curve 0.85 @ 4, 0.95 @ 8: 6 (pooled with B's, 0.725 / 0.825: never, "> 8")
+    assert float(rows["active"]["equivalent_supv_bd_size"]) == pytest.approx(6.0)
+    assert rows["supv"]["equivalent_supv_bd_size"] == "" and rows["supv"]["equivalent_note"] == "other latent space"
+    table = {r[0]: r for r in _table((out / "report.md").read_text(), "### Table 3 layout")}
+    assert "— (supv_bd ran on another latent space)" in table["equivalent supv_bd size"]

@@ -123,16 +123,31 @@ def equivalent_size(sizes: list[int], accuracy: list[float], target: float) -> t
     return float(sizes[-1]), ">"
 
 
+def latent_space(run: dict) -> str | None:
+    """The run's latent space (its autoencoder's cache key; None for runs that do not record it): accuracies are
+    comparable only within one, each space having its own U(Z) test set."""
+    return (run.get("autoencoder") or {}).get("cache_key")
+
+
+def mean_curve(runs: list[dict]) -> tuple[list[int], list[float]]:
+    """Sizes and the mean accuracy over ``runs`` at each (the rounds as discovered: at logit 0)."""
+    cells = defaultdict(list)
+    for run in runs:
+        for r in run["rounds"]:
+            cells[int(r["dataset_size"])].append(float(r["accuracy"]))
+    sizes = sorted(cells)
+    return sizes, [float(np.mean(cells[s])) for s in sizes]
+
+
 def table3(runs: list[dict], agg: dict) -> list[dict]:
     """Rows of the paper's Table 3: per data set and method, final size and accuracy/FNR at logit 0 (mean ± std over
-    seeds at each run's last round), equivalent supv_bd size and parameter count; and accuracy/FNR at the operating
-    point over the runs that have one (``n_operating`` of them; None without)."""
+    seeds at each run's last round), equivalent supv_bd size (against the supv_bd runs on the method's latent space;
+    none, noted "other latent space", when there are only others) and parameter count; and accuracy/FNR at the
+    operating point over the runs that have one (``n_operating`` of them; None without)."""
     rows = []
     runs_of = by_dataset(runs)
     for ds in sorted(agg):
-        ref = agg[ds].get("supv_bd")
-        ref_sizes = sorted(ref) if ref else []
-        ref_acc = [float(np.mean(ref[s]["accuracy"])) for s in ref_sizes] if ref else []
+        ref_runs = [r for r in runs_of[ds] if method(r) == "supv_bd"]
         for m in ordered_methods(agg[ds]):
             mr = [r for r in runs_of[ds] if method(r) == m]
             final = [r["rounds"][-1] for r in mr]
@@ -150,9 +165,15 @@ def table3(runs: list[dict], agg: dict) -> list[dict]:
             if ops:
                 for key in ("accuracy", "fnr"):
                     row[f"operating_{key}_mean"], row[f"operating_{key}_std"] = seed_mean_std([o[key] for o in ops])
-            if ref_sizes and m != "supv_bd":
-                eq, note = equivalent_size(ref_sizes, ref_acc, row["accuracy_mean"])
-                row["equivalent_supv_bd_size"], row["equivalent_note"] = eq, note
+            if ref_runs and m != "supv_bd":
+                spaces = {latent_space(r) for r in mr}
+                same = [r for r in ref_runs if latent_space(r) in spaces]
+                if same:  # supv_bd's mean accuracy curve on the method's own latent space (hence test set)
+                    ref_sizes, ref_acc = mean_curve(same)
+                    eq, note = equivalent_size(ref_sizes, ref_acc, row["accuracy_mean"])
+                    row["equivalent_supv_bd_size"], row["equivalent_note"] = eq, note
+                else:
+                    row["equivalent_note"] = "other latent space"
             rows.append(row)
     return rows
 

@@ -88,7 +88,7 @@ def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) 
 
         def eq(r):
             if r["equivalent_supv_bd_size"] is None:
-                return "—"
+                return "— (supv_bd ran on another latent space)" if r["equivalent_note"] else "—"
             return f"{r['equivalent_note']}{r['equivalent_supv_bd_size']:.0f}"
 
         for title, f in (("data set size", lambda r: f"{r['final_size']:.0f}"),
