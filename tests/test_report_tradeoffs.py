@@ -208,5 +208,7 @@ def test_equivalent_size_only_against_supv_bd_on_the_same_latent_space(tmp_path)
     # active 0.9 on A's supv_bd curve 0.85 @ 4, 0.95 @ 8: 6 (pooled with B's, 0.725 / 0.825: never, "> 8")
     assert float(rows["active"]["equivalent_supv_bd_size"]) == pytest.approx(6.0)
     assert rows["supv"]["equivalent_supv_bd_size"] == "" and rows["supv"]["equivalent_note"] == "other latent space"
-    table = {r[0]: r for r in _table((out / "report.md").read_text(), "### Table 3 layout")}
+    text = (out / "report.md").read_text()
+    table = {r[0]: r for r in _table(text, "### Table 3 layout")}
     assert "— (supv_bd ran on another latent space)" in table["equivalent supv_bd size"]
+    assert "These runs use 3 latent spaces (Active+bd (ours), Supv+bd; Supv+bd; Supv)" in text
