@@ -212,3 +212,28 @@ def test_equivalent_size_only_against_supv_bd_on_the_same_latent_space(tmp_path)
     table = {r[0]: r for r in _table(text, "### Table 3 layout")}
     assert "— (supv_bd ran on another latent space)" in table["equivalent supv_bd size"]
     assert "These runs use 3 latent spaces (Active+bd (ours), Supv+bd; Supv+bd; Supv)" in text
+
+
+def test_methods_at_equal_size_interpolated_within_each_latent_space(tmp_path):
+    """'active ≥ supv_bd ≥ supv at equal size' (issue 42): each method read at every size any method of its latent
+    space ran (exact, or ``~`` interpolated between its own sizes, never extrapolated), ranked there; a latent space
+    with one method gets no table."""
+    from experiments.reporting.equal_size import equal_size_markdown, order_text, value_at
+
+    assert value_at([2, 4], [0.8, 0.9], 3) == (pytest.approx(0.85), False)
+    assert value_at([2, 4], [0.8, 0.9], 4) == (0.9, True) and value_at([2, 4], [0.8, 0.9], 5) == (None, False)
+    assert order_text({"supv": 0.9, "active_paper": 0.95, "supv_bd": 0.9}) in (
+        "Active+bd (paper's text) > Supv = Supv+bd", "Active+bd (paper's text) > Supv+bd = Supv")
+
+    def run(m, sizes, accs, key="A"):
+        return {"detector": {"method": m}, "autoencoder": {"cache_key": key},
+                "rounds": [{"dataset_size": s, "accuracy": a} for s, a in zip(sizes, accs)]}
+
+    runs = [run("active_paper", [2, 3, 4], [0.90, 0.92, 0.93]), run("active_paper", [2, 3], [0.90, 0.94]),
+            run("supv_bd", [2, 5], [0.90, 0.93]), run("active", [2, 4], [0.95, 0.96], key="B")]
+    lines = equal_size_markdown(runs)
+    assert sum(ln.startswith("### methods at equal size") for ln in lines) == 1  # B has one method
+    rows = {ln.split(" | ")[0]: ln for ln in lines if ln.startswith("| ") and ln[2].isdigit()}
+    assert rows["| 2"] == "| 2 | 0.9000 | 0.9000 | Supv+bd = Active+bd (paper's text) |"  # ties: report order
+    assert rows["| 3"] == "| 3 | ~0.9100 | 0.9300 | Active+bd (paper's text) > Supv+bd |"  # seeds' mean 0.93
+    assert rows["| 5"] == "| 5 | 0.9300 | — |  |"

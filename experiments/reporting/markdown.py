@@ -23,6 +23,7 @@ from experiments.reporting.discover import (
     ordered_methods,
     paper_figures,
 )
+from experiments.reporting.equal_size import equal_size_markdown
 
 HANDLING_KEYS = (("success_rate", "success"), ("resolved_rate", "resolved"), ("mean_pd_reduction", "PD reduction"),
                  ("mean_embedding_diff", "‖Z − Z_user‖"), ("seconds_per_mesh", "ms / mesh"))
@@ -131,6 +132,7 @@ def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) 
                 ", ".join(sorted(v)) for v in spaces.values()) + "), each with its own box U(Z) and test set: "
                 "accuracies compare within a latent space, not across (the majority class above is their mean).",
                 ""]
+        lines += equal_size_markdown(ds_runs)
         lines += [handling_markdown(ds_runs)]
         lines += latent_markdown(ds_runs)
         lines += speed_markdown(ds, ds_runs, agg)
