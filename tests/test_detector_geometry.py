@@ -224,7 +224,7 @@ def _strip_space(dim: int = 2, seed: int = 7) -> LinearSpace:
     return space
 
 
-def test_run_geometry_is_saved_reloaded_and_featurizes_codes_and_meshes(tmp_path):
+def test_run_geometry_is_saved_reloaded_and_featurizes_codes_and_meshes(tmp_path, monkeypatch, capsys):
     """The run stage's pair choice (bootstrap codes + realistic meshes) reloads as the same geometry (a resumed run
     builds the same detector); codes and whole meshes give the same features as the module's own functions."""
     from neuralcol.nn.part_geometry import code_mesh_logits, mesh_pair_features
@@ -250,7 +250,13 @@ def test_run_geometry_is_saved_reloaded_and_featurizes_codes_and_meshes(tmp_path
         choose_run_geometry(space, z, np.zeros(10, bool), None, cfg, tmp_path / "none.npz")
     rng = np.random.default_rng(0)
     zz = rng.uniform(-1, 1, (7, 2)).astype(np.float32)
-    feats = codes_featurizer(geo, space, block=3)(zz)
+    monkeypatch.setenv("NEURALCOL_PROGRESS", "lines")
+    monkeypatch.setenv("NEURALCOL_PROGRESS_INTERVAL", "1e-9")  # a line at every block
+    capsys.readouterr()
+    feats = codes_featurizer(geo, space, block=3)(zz)  # 3 blocks: progress lines (2e5 codes took minutes silently)
+    assert "pair features of decoded codes: 6/7 code (86%)" in capsys.readouterr().err
+    codes_featurizer(geo, space, block=4)(zz)
+    assert "pair features" not in capsys.readouterr().err  # two blocks: no line
     torch.testing.assert_close(torch.as_tensor(feats), geometry_of_codes(geo, space, torch.as_tensor(zz)).float())
     meshes = space.decode(torch.as_tensor(zz, dtype=torch.float64)).numpy()
     torch.testing.assert_close(torch.as_tensor(mesh_pair_features(geo, meshes, block=2)), torch.as_tensor(feats),
