@@ -267,12 +267,14 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
                  pool=None, logger=None)
     sitting.start(cfg.get("max_minutes"))
     record = SittingRecord(s.rd.sittings)
+    sitting.on_check(record.progress)
     try:
         with contextlib.ExitStack() as s.pool_stack:
             for stage in STAGES:
                 name = stage.__name__.removeprefix("stage_")
                 sitting.check(f"the start of stage {name}")
                 t0 = time.perf_counter()
+                record.begin(name)
                 try:
                     stage(s)
                 finally:  # a stage stopped inside (at a safe point) counts its time too

@@ -65,3 +65,33 @@ def test_sitting_record_sums_the_stages_over_sittings(tmp_path):
     s = b.summary()
     assert s["n"] == 2 and s["stage_seconds"] == {"data": 3.5, "detector": 50.0}
     assert b.records[0]["stopped_at"] == "the end of round 0" and b.records[1]["finished"]
+
+
+def test_a_sitting_killed_mid_stage_keeps_that_stage_up_to_its_last_safe_point(tmp_path, monkeypatch):
+    """Issue 42: a session's end kills a sitting from outside (no close); the stage it was in (the detector's
+    rounds, for an hour) was missing from the wall time per stage. Each safe point (``sitting.check``) now writes the
+    running stage's time so far (at most every 30 s), and the summary counts it."""
+    from neuralcol.utils import sitting
+    from neuralcol.utils import sitting_record as sr
+
+    now = [1000.0]
+    monkeypatch.setattr(sr.time, "monotonic", lambda: now[0])  # (time.monotonic itself, restored after the test)
+    a = sr.SittingRecord(tmp_path / "sittings.json")
+    sitting.on_check(a.progress)
+    try:
+        a.stage("data", 2.0)
+        a.begin("detector")
+        now[0] += 10.0
+        sitting.check("a label batch")  # 10 s since the last write: not written yet
+        now[0] += 50.0
+        sitting.check("a label batch")  # 60 s: written
+        now[0] += 20.0  # killed here: the last 20 s are lost, the first 60 kept
+    finally:
+        sitting.stop()
+    b = sr.SittingRecord(tmp_path / "sittings.json")  # the next sitting reads what the killed one left
+    assert b.records[0]["running"] == {"stage": "detector", "seconds": 60.0}
+    b.begin("detector")
+    b.stage("detector", 5.0)
+    b.close()
+    assert "running" not in b.records[1]
+    assert b.summary()["stage_seconds"] == {"data": 2.0, "detector": 65.0}

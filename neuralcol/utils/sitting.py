@@ -31,7 +31,7 @@ class SittingOver(Exception):
                          "here is saved: rerun the same command to go on")
 
 
-_state: dict = {"t0": None, "budget": None, "held": 0}
+_state: dict = {"t0": None, "budget": None, "held": 0, "on_check": None}
 
 
 def start(max_minutes: float | None) -> None:
@@ -41,8 +41,13 @@ def start(max_minutes: float | None) -> None:
 
 
 def stop() -> None:
-    """No budget any more (the run is over, or a test is)."""
-    _state.update(t0=None, budget=None)
+    """No budget any more (the run is over, or a test is); no :func:`on_check` callback either."""
+    _state.update(t0=None, budget=None, on_check=None)
+
+
+def on_check(fn) -> None:
+    """Call ``fn()`` (no arguments) at every :func:`check`, held or not, until :func:`stop`."""
+    _state["on_check"] = fn
 
 
 def minutes() -> float:
@@ -59,6 +64,8 @@ def check(where: str) -> None:
     """Raise :class:`SittingOver` naming ``where`` if the budget is spent; call only where stopping loses nothing.
     Inside :func:`held` it never raises. Tests stop a run at a chosen safe point, whatever the clock, with
     ``NEURALCOL_SITTING_STOP_AT=<text>`` (the first safe point whose ``where`` contains it; cf. ``NEURALCOL_FAULT``)."""
+    if _state["on_check"] is not None:  # e.g. SittingRecord.progress: a killed sitting keeps its stage's time
+        _state["on_check"]()
     if _state["held"]:
         return
     forced = os.environ.get(STOP_AT_ENV)

@@ -23,6 +23,7 @@ class SittingRecord:
         self.current = {"started": dt.datetime.now().isoformat(timespec="seconds"), "stages": {},
                         "minutes": 0.0, "stopped_at": None, "finished": False}
         self.records.append(self.current)
+        self._running_t0 = self._last_write = self.t0
         self._write()
 
     def _read(self) -> list[dict]:
@@ -39,23 +40,46 @@ class SittingRecord:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         write_json_atomic(self.path, {"sittings": self.records})
 
+    def begin(self, name: str) -> None:
+        """Stage ``name`` starts: until :meth:`stage` records it, :meth:`progress` keeps its time so far in the
+        record's ``running`` entry (a sitting killed from outside mid-stage, e.g. at a session's end, keeps it)."""
+        self._running_t0 = self._last_write = time.monotonic()
+        self.current["running"] = {"stage": name, "seconds": 0.0}
+
+    def progress(self, every_s: float = 30.0) -> None:
+        """The running stage's time so far into the record, written at most every ``every_s`` seconds (called at
+        each safe point, :func:`neuralcol.utils.sitting.on_check`)."""
+        running = self.current.get("running")
+        now = time.monotonic()
+        if running is None or now - self._last_write < every_s:
+            return
+        running["seconds"] = round(now - self._running_t0, 3)
+        self._last_write = now
+        self._write()
+
     def stage(self, name: str, seconds: float) -> None:
         """A stage finished in this sitting after ``seconds`` of wall time."""
+        self.current.pop("running", None)
         self.current["stages"][name] = round(self.current["stages"].get(name, 0.0) + float(seconds), 3)
         self._write()
 
     def close(self, stopped_at: str | None = None) -> None:
         """This sitting ends: stopped at ``stopped_at`` (its time budget), or finished (None)."""
+        self.current.pop("running", None)
         self.current["stopped_at"] = stopped_at
         self.current["finished"] = stopped_at is None
         self._write()
 
     def summary(self) -> dict:
         """``{"n": sittings, "minutes": total, "stage_seconds": {stage: seconds over every sitting}}``. A stage
-        that ran again after a stop (it had no safe point inside) counts every time it ran."""
+        that ran again after a stop (it had no safe point inside) counts every time it ran; a sitting killed
+        mid-stage counts that stage up to its last safe point (its ``running`` entry)."""
         total: dict[str, float] = {}
         for r in self.records:
-            for k, v in r.get("stages", {}).items():
+            running = r.get("running") or {}
+            parts = list(r.get("stages", {}).items()) + ([(running["stage"], running.get("seconds", 0.0))]
+                                                         if running.get("stage") else [])
+            for k, v in parts:
                 total[k] = round(total.get(k, 0.0) + float(v), 3)
         return {"n": len(self.records), "minutes": round(sum(float(r.get("minutes", 0.0)) for r in self.records), 3),
                 "stage_seconds": total}
