@@ -1,5 +1,5 @@
 #!/bin/bash
-# issue 42: where the paper-scale queues (paper_queue_v3.sh, paper_queue_side.sh, paper_queue_tail.sh) stand: each job's state and finished rounds.
+# issue 42: where the paper-scale queues (paper_queue_v3.sh, paper_queue_side2.sh, paper_queue_tail.sh) stand: each job's state and finished rounds.
 R=$HOME/neuralcol-runs/issue42
 cd /work/main
 for name in neuralcol_s0 paper_active_s0 paper_supv_bd_s0 paper_supv_s0 neuralcol_s1 paper_active_s1 paper_supv_bd_s1 \
