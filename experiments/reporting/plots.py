@@ -71,7 +71,7 @@ def plot(agg: dict, metric: str, path: Path) -> bool:
     if not datasets:
         return False
     column = {"accuracy": 0, "fnr": 1}.get(metric)
-    with figure(path, 1, len(datasets), (4.5 * len(datasets), 3.4)) as axes:
+    with figure(path, 1, len(datasets), (6.4 * len(datasets), 3.4)) as axes:
         for ax, ds in zip(axes[0], datasets):
             shown = set()
             for m in ordered_methods(agg[ds]):
@@ -89,7 +89,7 @@ def plot(agg: dict, metric: str, path: Path) -> bool:
                             label=f"paper: {PAPER_NAMES.get(m, m)}")
             _style(ax, "data set size |D_c|", METRIC_LABELS[metric], ds)
             ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4))  # 2e5..5.5e5 overlapped in full
-            ax.legend(fontsize="small")
+            ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1))  # beside: curves and stars free
     return True
 
 
