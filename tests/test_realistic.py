@@ -168,3 +168,25 @@ def test_report_wall_time_per_stage():
     assert not any(r.startswith("| data") for r in table)  # 12 s everywhere
     assert "| **total** | 72.0 | 112.0 ± 14.1 |" in table and "| sittings | 2 | 2.5 ± 0.71 |" in table
     assert wall_time_markdown([{"detector": {"method": "supv"}}], ["supv"]) == []
+
+
+def test_report_wall_time_takes_the_rounds_record_where_a_killed_sitting_lost_the_detectors_time():
+    """neuralcol_s1 (issue 42): sittings killed inside the rounds before stop 57 lost 142 minutes of the detector's
+    time from sittings.json while its rounds kept their running totals. The table takes the larger of the two, grows
+    the total by the difference and names the run; a run whose sittings hold the time keeps its own figure."""
+    from experiments.reporting.markdown import wall_time_markdown
+
+    def run(name, detector_s, minutes, rounds_s):
+        return {"_path": f"/runs/{name}", "detector": {"method": "active"},
+                "rounds": [{"label_seconds": 10.0, "train_seconds": 20.0, "project_seconds": 0.0},
+                           dict(zip(("label_seconds", "train_seconds", "project_seconds"), rounds_s))],
+                "sittings": {"n": 1, "minutes": minutes, "stage_seconds": {"detector": detector_s}}}
+
+    lost = run("neuralcol_s1", 3600.0, 70.0, (1200.0, 10800.0, 0.0))     # rounds: 200 min, sittings: 60
+    whole = run("neuralcol_s0", 12600.0, 220.0, (1300.0, 11000.0, 60.0))  # rounds 206 min < sittings' 210
+    lines = wall_time_markdown([lost, whole], ["active"])
+    table = [r for r in lines if r.startswith("|")]
+    assert "| detector (labeling + training, all rounds) | 205.0 ± 7.1 |" in table  # 200 and 210
+    assert "| **total** | 215.0 ± 7.1 |" in table  # 70 + 140 and 220
+    note = " ".join(r for r in lines if not r.startswith("|"))
+    assert "1 run(s) (neuralcol_s1)" in note and "neuralcol_s0" not in note

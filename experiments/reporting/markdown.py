@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import defaultdict
+from pathlib import Path
 
 import numpy as np
 
@@ -334,30 +335,62 @@ STAGE_TITLES = {"data": "data (meshes, ACAP)", "latent": "autoencoder (latent sp
                 "cascade": "certified cascade", "speed": "speed against accuracy"}
 
 
+def rounds_seconds(run: dict) -> float | None:
+    """The detector stage's seconds as its rounds recorded them (``metrics.json`` -> ``rounds``: running totals of
+    labeling, training and projection, kept across sittings with their batches and rounds), None without rounds."""
+    rounds = run.get("rounds") or []
+    if not rounds:
+        return None
+    last = rounds[-1]
+    return sum(float(last.get(k) or 0.0) for k in ("label_seconds", "train_seconds", "project_seconds"))
+
+
+def sitting_times(run: dict) -> tuple[dict, float, bool]:
+    """A run's wall seconds per stage, its total minutes, and whether the detector's figure came from its rounds.
+    Before stop 57 a sitting killed inside the detector's rounds (the session's end, not ``max_minutes``) lost that
+    stage's time from ``sittings.json``, though its finished rounds kept theirs: the detector stage is the larger of
+    the two, and the total grows by the difference."""
+    stages = dict(run["sittings"]["stage_seconds"])
+    minutes = float(run["sittings"].get("minutes") or 0.0)
+    by_rounds = rounds_seconds(run)
+    if by_rounds is not None and by_rounds > stages.get("detector", 0.0) + 60:
+        minutes += (by_rounds - stages.get("detector", 0.0)) / 60
+        stages["detector"] = by_rounds
+        return stages, minutes, True
+    return stages, minutes, False
+
+
 def wall_time_markdown(runs: list[dict], names: list[str]) -> list[str]:
-    """Wall time per stage (``metrics.json`` -> ``sittings``: seconds summed over the sittings a run took), mean ±
-    std over the seeds of each method, in minutes; nothing when no run recorded its sittings."""
+    """Wall time per stage (``metrics.json`` -> ``sittings``: seconds summed over the sittings a run took; the
+    detector's from its rounds where a killed sitting lost it, see ``sitting_times``), mean ± std over the seeds of
+    each method, in minutes; nothing when no run recorded its sittings."""
     timed = [r for r in runs if (r.get("sittings") or {}).get("stage_seconds")]
     if not timed:
         return []
-    stages = list(dict.fromkeys(k for r in timed for k in r["sittings"]["stage_seconds"]))
+    times = [sitting_times(r) for r in timed]
+    stages = list(dict.fromkeys(k for st, _, _ in times for k in st))
     lines = ["### wall time per stage (minutes, summed over sittings; mean ± std over seeds)", "",
              row("stage", *(label(m) for m in names)), "|---|" + "---:|" * len(names)]
 
     def cell(m: str, value, fmt: str = ".1f") -> str:
-        vals = [v for r in timed if method(r) == m for v in [value(r)] if v is not None]
+        vals = [v for r, t in zip(timed, times) if method(r) == m for v in [value(r, t)] if v is not None]
         return pm(*seed_mean_std(vals), len(vals), fmt) if vals else "—"
 
     for k in stages:
-        if all(r["sittings"]["stage_seconds"].get(k, 0.0) < 30 for r in timed):
+        if all(st.get(k, 0.0) < 30 for st, _, _ in times):
             continue  # under half a minute everywhere: in the total
-        lines.append(row(STAGE_TITLES.get(k, k), *(cell(m, lambda r, k=k: r["sittings"]["stage_seconds"].get(k, 0.0)
-                                                         / 60) for m in names)))
-    lines.append(row("**total**", *(cell(m, lambda r: r["sittings"].get("minutes")) for m in names)))
-    lines.append(row("sittings", *(cell(m, lambda r: r["sittings"].get("n"), ".2g") for m in names)))
+        lines.append(row(STAGE_TITLES.get(k, k), *(cell(m, lambda r, t, k=k: t[0].get(k, 0.0) / 60) for m in names)))
+    lines.append(row("**total**", *(cell(m, lambda r, t: t[1]) for m in names)))
+    lines.append(row("sittings", *(cell(m, lambda r, t: r["sittings"].get("n"), ".2g") for m in names)))
+    from_rounds = [Path(r["_path"]).name if "_path" in r else label(method(r)) for r, t in zip(timed, times) if t[2]]
+    note = "" if not from_rounds else (
+        f" The detector's time of {len(from_rounds)} run(s) ({', '.join(from_rounds)}) is its rounds' own record "
+        "(labeling + training + projection, running totals kept with each round): a sitting of theirs was killed "
+        "inside the rounds before `sittings.json` kept a running stage's time (stop 57), so the sittings' figure "
+        "lacks it; their totals grow by the difference.")
     return lines + ["", "Stages under half a minute in every run are left out of the rows (not of the total); a "
                     "stage near 0 took its result from the cache (`paths.cache_dir`), paid by an earlier run. A "
-                    "run that shared its machine with another ran slower than it would alone.", ""]
+                    "run that shared its machine with another ran slower than it would alone." + note, ""]
 
 
 def stability_markdown(ds: str, agg: dict) -> list[str]:
