@@ -60,8 +60,11 @@ def pm(mean: float, std: float, n: int, fmt=".4f") -> str:
     return f"{f(mean)} ± {f(std)}" if n > 1 else f(mean)
 
 
-def pct_pm(mean: float, std: float, fmt: str = ".2f") -> str:
-    """``62.00% ± 1.41`` (``fmt=".2g"``: ``0.00043% ± 0``, for fractions too small for two decimals)."""
+def pct_pm(mean: float, std: float, fmt: str = ".2f", n: int | None = None) -> str:
+    """``62.00% ± 1.41`` (``fmt=".2g"``: ``0.00043% ± 0``, for fractions too small for two decimals); ``n=1`` (one
+    seed): the value alone, a std of 0 over one value would read as a spread measured."""
+    if n == 1:
+        return f"{100 * mean:{fmt}}%"
     return f"{100 * mean:{fmt}}% ± {100 * std:{fmt}}"
 
 
@@ -90,7 +93,8 @@ def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) 
         methods, ds_runs = agg[ds], runs_of[ds]
         names = ordered_methods(methods)
         n_seeds = max(len({s for cell in methods[m].values() for s in cell["seed"]}) for m in names)
-        lines += [f"## {ds}", "", f"### Table 3 layout (mean ± std over {n_seeds} seeds, last round of each run)", "",
+        lines += [f"## {ds}", "", "### Table 3 layout (mean ± std over each method's seeds, up to "
+                  f"{n_seeds}: row `seeds`; last round of each run)", "",
                   "| | " + " | ".join(label(m) for m in names) + " |", "|---|" + "---:|" * len(names)]
         ds_rows = {r["method"]: r for r in rows if r["dataset"] == ds}
 
@@ -100,8 +104,9 @@ def markdown(runs: list[dict], agg: dict, rows: list[dict], bench: dict | None) 
             return f"{r['equivalent_note']}{r['equivalent_supv_bd_size']:.0f}"
 
         for title, f in (("data set size", lambda r: f"{r['final_size']:.0f}"),
-                         ("accuracy", lambda r: pct_pm(r["accuracy_mean"], r["accuracy_std"])),
-                         ("false negative rate", lambda r: pct_pm(r["fnr_mean"], r["fnr_std"])),
+                         ("seeds", lambda r: f"{r['n_seeds']}"),
+                         ("accuracy", lambda r: pct_pm(r["accuracy_mean"], r["accuracy_std"], n=r["n_seeds"])),
+                         ("false negative rate", lambda r: pct_pm(r["fnr_mean"], r["fnr_std"], n=r["n_seeds"])),
                          ("equivalent supv_bd size", eq),
                          ("detector parameters", lambda r: f"{r['detector_parameters']}")):
             lines.append(row(title, *(f(ds_rows[m]) if m in ds_rows else "—" for m in names)))
@@ -154,7 +159,8 @@ def operating_rows(ds_rows: dict, names: list[str]) -> list[str]:
         r = ds_rows.get(m)
         if not r or not r["n_operating"]:
             return "—"
-        return pct_pm(r[f"operating_{key}_mean"], r[f"operating_{key}_std"]) + f" ({r['n_operating']})"
+        return pct_pm(r[f"operating_{key}_mean"], r[f"operating_{key}_std"], n=r["n_operating"]) + \
+            f" ({r['n_operating']})"
 
     return [row(f"{title} at the operating point", *(cell(m, key) for m in names))
             for key, title in (("accuracy", "accuracy"), ("fnr", "false negative rate"))]
@@ -234,7 +240,8 @@ def realistic_rows(runs: list[dict], names: list[str]) -> list[str]:
                 cells.append("—")
                 continue
             mean, std = seed_mean_std(vals)
-            cells.append(pct_pm(mean, std, ".2g" if pct == "small" else ".2f") if pct else f"{mean:.3g} ± {std:.2g}")
+            cells.append(pct_pm(mean, std, ".2g" if pct == "small" else ".2f", n=len(vals)) if pct
+                         else pm(mean, std, len(vals), lambda x: f"{x:.3g}"))
         if any(c != "—" for c in cells):
             out.append(row(title, *cells))
     n = [r["realistic"]["n_clear"] for r in runs if r.get("realistic")]
