@@ -26,5 +26,9 @@ for d in $runs; do
 done
 python research/issue42/explain_gap.py $runs --gbt $(ls outputs/issue42/gbt_*.json) \
   --out $O/explain.json | tee $O/explain.md
-python research/issue42/handling_curve.py $runs --inputs ${1:-1000} --out $O/handling_curve.json --plot $O/fig5.png \
-  | tee $O/handling_curve.md
+for d in $runs; do  # one run a call, kept: a rerun measures only the runs finished since
+  h=outputs/issue42/handling_curve_$(basename $d).json
+  [ -f $h ] || python research/issue42/handling_curve.py $d --inputs ${1:-1000} --out $h
+done
+python research/issue42/handling_curve.py --from-json $(for d in $runs; do echo outputs/issue42/handling_curve_$(basename $d).json; done) \
+  --out $O/handling_curve.json --plot $O/fig5.png | tee $O/handling_curve.md

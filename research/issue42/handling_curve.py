@@ -8,8 +8,10 @@ are missing and named), the handler guided by that detector alone, the paper's p
 (the inputs of the run's own handler stage, which takes its first ``handler.n_inputs``), every result labeled
 exactly: success rate (PD reduced) and mean relative PD reduction over the successful inputs (paper: 94.81 % for
 Active+bd, 88.76 % for Supv+bd on SCAPE). The runs' baselines (``supv``, ``supv_bd``) re-train at each size, so a
-round's detector there is the baseline at that size. Prints a markdown table, writes JSON (``--out``) and a plot of
-success rate against |D_c| per run (``--plot``).
+round's detector there is the baseline at that size. Prints a markdown table, writes JSON (``--out``) and a plot
+(``--plot``): success rate and PD reduction against |D_c|, one line per method, mean over its runs (seeds) with the
+paper's final PD reductions. ``--from-json`` adds earlier ``--out`` files without measuring them again (one run a
+call, then one plot of all: ``research/issue42/final_tables.sh``).
 """
 
 from __future__ import annotations
@@ -84,22 +86,71 @@ def table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+# the paper's mean relative PD reduction of its final detectors on SCAPE (Fig. 6's caption; it gives no success rate
+# as a number): Active+bd (both active methods are compared with it) and Supv+bd, at its final size 5.5e5
+PAPER_PD_REDUCTION = {"supv_bd": 0.8876, "active_paper": 0.9481, "active": 0.9481}
+PAPER_FINAL_SIZE = 5.5e5
+
+
+def by_method(results: list[dict], key: str) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Per method (in the report's order): sizes, mean of ``key`` over the runs measured at that size, its error bar
+    and the number of runs. The bar is the std over runs (ddof 1) where two or more runs have the size, else the
+    binomial standard error of one run's rate over its ``n_inputs`` (``key`` is a rate over the inputs or over the
+    successful ones; for the PD reduction, a mean over them, the same formula is a rough bar for a share near 1)."""
+    from experiments.reporting.discover import METHOD_ORDER
+
+    out = {}
+    methods = sorted({r["method"] for r in results},
+                     key=lambda m: METHOD_ORDER.index(m) if m in METHOD_ORDER else len(METHOD_ORDER))
+    for m in methods:
+        at: dict[int, list[tuple[float, int]]] = {}
+        for r in results:
+            if r["method"] == m:
+                for p in r["points"]:
+                    at.setdefault(int(p["dataset_size"]), []).append((float(p[key]), int(p["n"])))
+        if not at:
+            continue
+        sizes = np.array(sorted(at))
+        mean = np.array([np.mean([v for v, _ in at[n]]) for n in sizes])
+        err = np.array([np.std([v for v, _ in at[n]], ddof=1) if len(at[n]) > 1
+                        else np.sqrt(max(at[n][0][0] * (1 - at[n][0][0]), 0.0) / max(at[n][0][1], 1))
+                        for n in sizes])
+        out[m] = (sizes, mean, err, np.array([len(at[n]) for n in sizes]))
+    return out
+
+
 def plot(results: list[dict], path: Path) -> None:
+    """Paper Fig. 5 (handling success against |D_c|) and the mean PD reduction beside it, one line per method: mean
+    over its runs at each size (error bars: :func:`by_method`); the paper's final PD reductions as stars."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for res in results:
-        if res["points"]:
-            ax.plot([p["dataset_size"] for p in res["points"]], [p["success_rate"] for p in res["points"]], "o-",
-                    label=f"{res['run']} ({res['method']})")
-    ax.set_xlabel("|D_c|")
-    ax.set_ylabel(f"handling success ({results[0]['n_inputs'] if results else 0} inputs)")
-    ax.set_title("Collision handling success vs data set size (paper Fig. 5)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    from experiments.reporting.discover import LABELS, METHOD_ORDER
+
+    n_inputs = sorted({r["n_inputs"] for r in results})
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for ax, key, ylabel in ((axes[0], "success_rate", "handling success (share of inputs)"),
+                            (axes[1], "mean_pd_reduction", "mean relative PD reduction (successful inputs)")):
+        for m, (sizes, mean, err, runs) in by_method(results, key).items():
+            colour = f"C{METHOD_ORDER.index(m)}" if m in METHOD_ORDER else None
+            seeds = f"{runs.max()} seeds" if runs.max() > 1 else "1 seed"
+            ax.errorbar(sizes, mean, yerr=err, marker="o", capsize=3, color=colour,
+                        label=f"{LABELS.get(m, m)} ({seeds})")
+            if key == "mean_pd_reduction" and m in PAPER_PD_REDUCTION and m != "active":
+                ax.plot([PAPER_FINAL_SIZE], [PAPER_PD_REDUCTION[m]], "*", ms=14, color=colour,
+                        markeredgecolor="black", label=f"paper: {LABELS.get(m, m).split(' (')[0]}")
+        ax.set_xlabel("data set size |D_c|")
+        ax.ticklabel_format(axis="x", style="sci", scilimits=(5, 5))
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    axes[0].set_title(f"success, detector alone ({'/'.join(map(str, n_inputs))} inputs a round)", fontsize=10)
+    axes[1].set_title("PD reduction (stars: the paper's final detectors)", fontsize=10)
+    handles, labels = axes[1].get_legend_handles_labels()
+    order = sorted(range(len(labels)), key=lambda i: labels[i].startswith("paper"))  # the runs first, then the paper
+    axes[1].legend([handles[i] for i in order], [labels[i] for i in order], fontsize=8, loc="center left",
+                   bbox_to_anchor=(1.02, 0.5))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -107,12 +158,19 @@ def plot(results: list[dict], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("runs", type=Path, nargs="+")
+    ap.add_argument("runs", type=Path, nargs="*", help="run directories to measure")
+    ap.add_argument("--from-json", type=Path, nargs="*", default=[],
+                    help="earlier --out files to table and plot with the runs measured now (not measured again)")
     ap.add_argument("--inputs", type=int, default=1000, help="colliding test codes handled per round (default 1000)")
     ap.add_argument("--workers", type=int, default=2, help="labeling worker processes (default 2)")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--plot", type=Path, default=None)
     a = ap.parse_args(argv)
+    if not a.runs and not a.from_json:
+        raise SystemExit("give run directories to measure, or --from-json FILE... of earlier results")
+    missing = [str(p) for p in a.from_json if not p.is_file()]
+    if missing:
+        raise SystemExit(f"--from-json: no such file: {', '.join(missing)}")
     bad = [str(r) for r in a.runs if not RunDir(r).detector_rounds.is_file()]
     if bad:
         raise SystemExit(f"no detector_rounds.json in {', '.join(bad)}: not a run directory, or no round finished")
@@ -120,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"--inputs {a.inputs}: give at least 1")
     # one thread: beside the queue's runs two threads ran the handler 4.5x slower (128 inputs: 15.7 s against 3.3 s)
     torch.set_num_threads(1)
-    results = [curve(r, a.inputs, a.workers) for r in a.runs]
+    results = [res for p in a.from_json for res in json.loads(p.read_text())]
+    results += [curve(r, a.inputs, a.workers) for r in a.runs]
     print(table(results))
     if a.out:
         a.out.parent.mkdir(parents=True, exist_ok=True)
