@@ -3,7 +3,8 @@
 # Moves the frozen worktree /work/paperq to main's HEAD when no sitting runs (the queues' code for their next
 # sittings), and starts research/issue42/paper_queue_v3.sh, paper_queue_side.sh (stop 56 on) and paper_queue_tail.sh
 # (stop 57 on: the side queue's jobs from its end once v3 is done) in the background unless they already run. Stop 58
-# on, paper_queue_side2.sh replaces paper_queue_side.sh (same jobs, paper_supv_bd_s1 second). Each job's finished
+# on, paper_queue_side2.sh replaces paper_queue_side.sh (same jobs, paper_supv_bd_s1 second); stop 59 on,
+# paper_queue_variant.sh runs the tail's last job (the registered variant) once side2 is done. Each job's finished
 # rounds: research/issue42/queue_status.sh. Usage (from /work/main): research/issue42/resume_queue.sh
 set -e
 cd /work/main
@@ -16,7 +17,7 @@ if ! pgrep -f "experiments.run experiment=paper_scape" > /dev/null; then
   fi
 fi
 mkdir -p outputs/issue42
-for q in paper_queue_v3 paper_queue_side2 paper_queue_tail; do
+for q in paper_queue_v3 paper_queue_side2 paper_queue_tail paper_queue_variant; do
   if pgrep -f $q.sh > /dev/null; then
     echo "$q already runs (pid $(pgrep -f $q.sh | head -1))"
   elif [ -f outputs/issue42/${q%_v3}.done ]; then  # v3 writes paper_queue.done
