@@ -21,8 +21,9 @@ runs=$(for d in $R/*/; do [ -f $d/metrics.json ] && echo ${d%/}; done)
 python -m experiments.report $runs --out $O/report
 for d in $runs; do
   g=outputs/issue42/gbt_$(basename $d).json
-  case $(basename $d) in $GBT_RUNS) [ -f $g ] || /usr/bin/time -v python -m research.gbt_reference $d --out $g \
-    2> outputs/issue42/gbt_$(basename $d).time;; esac
+  t=outputs/issue42/gbt_$(basename $d).time
+  case $(basename $d) in $GBT_RUNS) [ -f $g ] || /usr/bin/time -v python -m research.gbt_reference $d --out $g 2> $t \
+    || { echo "the trees on $d failed: see $t"; exit 1; };; esac
 done
 python research/issue42/explain_gap.py $runs --gbt $(ls outputs/issue42/gbt_*.json) \
   --out $O/explain.json | tee $O/explain.md

@@ -25,6 +25,7 @@ import h5py
 import numpy as np
 import torch
 
+from experiments.reporting.discover import METHOD_ORDER, label, ordered_methods
 from neuralcol.api.run import load_run
 from neuralcol.handler.resolve import alm_settings
 from neuralcol.nn.detector import load_detector
@@ -87,8 +88,8 @@ def table(results: list[dict]) -> str:
 
 
 # the paper's mean relative PD reduction of its final detectors on SCAPE (Fig. 6's caption; it gives no success rate
-# as a number): Active+bd (both active methods are compared with it) and Supv+bd, at its final size 5.5e5
-PAPER_PD_REDUCTION = {"supv_bd": 0.8876, "active_paper": 0.9481, "active": 0.9481}
+# as a number): Supv+bd and Active+bd (drawn once, in active_paper's colour), at its final size 5.5e5
+PAPER_PD_REDUCTION = {"supv_bd": 0.8876, "active_paper": 0.9481}
 PAPER_FINAL_SIZE = 5.5e5
 
 
@@ -97,12 +98,8 @@ def by_method(results: list[dict], key: str) -> dict[str, tuple[np.ndarray, np.n
     and the number of runs. The bar is the std over runs (ddof 1) where two or more runs have the size, else the
     binomial standard error of one run's rate over its ``n_inputs`` (``key`` is a rate over the inputs or over the
     successful ones; for the PD reduction, a mean over them, the same formula is a rough bar for a share near 1)."""
-    from experiments.reporting.discover import METHOD_ORDER
-
     out = {}
-    methods = sorted({r["method"] for r in results},
-                     key=lambda m: METHOD_ORDER.index(m) if m in METHOD_ORDER else len(METHOD_ORDER))
-    for m in methods:
+    for m in ordered_methods(r["method"] for r in results):
         at: dict[int, list[tuple[float, int]]] = {}
         for r in results:
             if r["method"] == m:
@@ -127,8 +124,6 @@ def plot(results: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from experiments.reporting.discover import LABELS, METHOD_ORDER
-
     n_inputs = sorted({r["n_inputs"] for r in results})
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for ax, key, ylabel in ((axes[0], "success_rate", "handling success (share of inputs)"),
@@ -137,10 +132,10 @@ def plot(results: list[dict], path: Path) -> None:
             colour = f"C{METHOD_ORDER.index(m)}" if m in METHOD_ORDER else None
             seeds = f"{runs.max()} seeds" if runs.max() > 1 else "1 seed"
             ax.errorbar(sizes, mean, yerr=err, marker="o", capsize=3, color=colour,
-                        label=f"{LABELS.get(m, m)} ({seeds})")
-            if key == "mean_pd_reduction" and m in PAPER_PD_REDUCTION and m != "active":
+                        label=f"{label(m)} ({seeds})")
+            if key == "mean_pd_reduction" and m in PAPER_PD_REDUCTION:
                 ax.plot([PAPER_FINAL_SIZE], [PAPER_PD_REDUCTION[m]], "*", ms=14, color=colour,
-                        markeredgecolor="black", label=f"paper: {LABELS.get(m, m).split(' (')[0]}")
+                        markeredgecolor="black", label=f"paper: {label(m).split(' (')[0]}")
         ax.set_xlabel("data set size |D_c|")
         ax.ticklabel_format(axis="x", style="sci", scilimits=(5, 5))
         ax.set_ylabel(ylabel)
