@@ -182,3 +182,42 @@ def test_a_sitting_stops_at_a_round_and_the_same_command_finishes_the_run(refere
     sittings = json.loads((run_dir / "metrics.json").read_text())["sittings"]
     assert sittings["n"] == 3 and sittings["stage_seconds"]["detector"] > 0
     assert json.loads((run_dir / "sittings.json").read_text())["sittings"][2]["finished"]
+
+
+def test_a_round_stopped_inside_goes_on_from_its_epoch(reference, scape_dir):
+    """detector.checkpoint_minutes (issue 42): inside a round the training state is saved at epochs' ends (here
+    every epoch), with the round's best validation epoch so far. A sitting stopped there, or a run killed after
+    such a save, goes on from the next epoch instead of training the round again, and ends equal to the
+    uninterrupted run (same D_c, same metrics: the same epochs selected)."""
+    from neuralcol.utils.safe_files import read_torch_file
+
+    base, cache, ((dc_ref, m_ref), _) = reference
+    out = base / "inside"
+    data = [str(scape_dir.parent), "max_minutes=600", "detector.checkpoint_minutes=0"]
+    # tiny: 4 epochs a round; round 0 is epochs 0-3, round 1 epochs 4-7, round 2 epochs 8-11
+    proc = _run(data, out, cache, stop_at="round 1's epoch 2/4")
+    assert proc.returncode == 75, proc.stderr[-3000:]
+    assert "[sitting] stopped at round 1's epoch 2/4 (|D_c| = 180)" in proc.stdout
+    (run_dir,) = _run_dirs(out)
+    ckpt = run_dir / "checkpoints" / "detector.ckpt"
+    state = read_torch_file(ckpt)
+    assert state["epoch"] == 5
+    (rounds_state,) = [v for k, v in state["callbacks"].items() if "RoundCallback" in k]
+    assert rounds_state["round"] == 1 and rounds_state["best"]["epoch"] in (4, 5)
+
+    # again, killed when its 4th epoch starts: epochs 6-7 end round 1, 8 is round 2's first, 9 its second. Had it
+    # trained round 1 again from its start (epochs 4-7), it would die inside round 1, before recording it
+    proc = _run(data, out, cache, fault="train_epoch:4")
+    assert proc.returncode == -signal.SIGKILL, proc.stderr[-2000:]
+    rounds = json.loads((run_dir / "detector_rounds.json").read_text())["rounds"]
+    assert [r["round"] for r in rounds] == [0, 1]
+    assert read_torch_file(ckpt)["epoch"] == 8
+
+    proc = _run(data, out, cache)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    dc, metrics = _result(run_dir)
+    for k in dc_ref:
+        np.testing.assert_array_equal(dc[k], dc_ref[k], err_msg=k)
+    assert metrics == m_ref
+    rounds = json.loads((run_dir / "metrics.json").read_text())["rounds"]
+    assert all(0 < r["train_seconds"] < 900 for r in rounds), [r["train_seconds"] for r in rounds]

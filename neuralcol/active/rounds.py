@@ -10,6 +10,9 @@ round with D_c truncated to the rows that checkpoint knew. The trained round is 
 acquisition (which labels for about as long as the round trains at the paper's sizes): a run stopped while
 acquiring resumes with that acquisition (``on_fit_start``, before Lightning builds the data loaders; the
 optimizer side in ``on_train_start``, after it restores the optimizer), not by training the round again.
+Inside a round, the training state is saved at an epoch's end every ``checkpoint_minutes`` (the best validation
+epoch's weights with it): a run killed there, or stopped by its sitting's budget, goes on from that epoch instead
+of training the round again from its start (a round trains 30-60 min at the paper's sizes on 2 cores; issue 42).
 """
 
 from __future__ import annotations
@@ -75,15 +78,21 @@ class RoundCallback(L.Callback):
         select_best_val: at the end of a round, restore the weights of the round's epoch with the best
             validation accuracy (model selection on the 20 % validation split of D_c) before testing.
         on_round: called with the list of round records after each round (metrics.json, TensorBoard).
+        checkpoint_minutes: inside a round, save the training state at the end of the first epoch that ends this
+            many minutes after the last save (0: every epoch; None: at round ends only). A sitting's budget
+            (``max_minutes``) is checked there too.
     """
 
     def __init__(self, datamodule: CollisionDataModule, acquire: UniformAcquisition | None, evaluate: Callable,
                  bootstrap: Schedule, update: Schedule, n_aug: int, max_rounds: int, stop_at_elbow: bool,
                  elbow_min_points: int, elbow_sensitivity: float, checkpoint_path: str | Path, seed: int,
                  select_best_val: bool = True, on_round: Callable[..., None] | None = None,
-                 extra_eval: Callable | None = None):
+                 extra_eval: Callable | None = None, checkpoint_minutes: float | None = None):
         if n_aug < 1 or max_rounds < 0:
             raise ValueError(f"n_aug={n_aug} must be >= 1 and max_rounds={max_rounds} >= 0")
+        if checkpoint_minutes is not None and not float(checkpoint_minutes) >= 0:
+            raise ValueError(f"detector.checkpoint_minutes={checkpoint_minutes}: give minutes >= 0 between the "
+                             "checkpoints inside a round (0: every epoch), or null for round ends only")
         if acquire is None and max_rounds > 0:
             raise ValueError(f"max_rounds={max_rounds} rounds need an acquisition (acquire=None: bootstrap only)")
         self.dm = datamodule
@@ -98,6 +107,8 @@ class RoundCallback(L.Callback):
         self.on_round = on_round
         self.select_best_val = bool(select_best_val)
         self.extra_eval = extra_eval
+        self.checkpoint_minutes = None if checkpoint_minutes is None else float(checkpoint_minutes)
+        self._last_save = time.monotonic()  # the last checkpoint this process saved (or its start)
         self._best: tuple[float, int, dict] | None = None  # (val accuracy, epoch, weights) of this round
         # state saved with checkpoints
         self.round = 0
@@ -132,7 +143,11 @@ class RoundCallback(L.Callback):
                  "seconds": dict(self.seconds), "store_len": self.store_len, "batch_size": self.dm.batch_size,
                  "pending_acquisition": self.pending_acquisition,
                  "acquire": None if self.acquire is None else self.acquire.state_dict(),
-                 "schedules": [asdict(self.bootstrap), asdict(self.update)]}
+                 "schedules": [asdict(self.bootstrap), asdict(self.update)],
+                 # inside a round: its best validation epoch so far (select_best_val), so a resumed round selects
+                 # the same weights as an uninterrupted one
+                 "best": None if self._best is None else {"accuracy": self._best[0], "epoch": self._best[1],
+                                                          "weights": self._best[2]}}
         return plain_values(state, f"{self.checkpoint_path.name}: RoundCallback state")
 
     def load_state_dict(self, state: dict) -> None:
@@ -150,6 +165,8 @@ class RoundCallback(L.Callback):
         self.store_len = state["store_len"]
         self.pending_acquisition = bool(state.get("pending_acquisition", False))  # absent before issue 42
         self.dm.batch_size = int(state["batch_size"])
+        best = state.get("best")  # absent before mid-round checkpoints (issue 42)
+        self._best = None if best is None else (float(best["accuracy"]), int(best["epoch"]), dict(best["weights"]))
         if self.acquire is not None:
             self.acquire.load_state_dict(state["acquire"])
 
@@ -193,6 +210,17 @@ class RoundCallback(L.Callback):
         self.seconds["train"] += time.perf_counter() - self._epoch_t0
         if trainer.current_epoch >= self.round_end_epoch:
             self._finish_round(trainer, pl_module)
+        elif self.checkpoint_minutes is not None and time.monotonic() - self._last_save >= 60 * self.checkpoint_minutes:
+            self._save_inside_round(trainer)
+
+    def _save_inside_round(self, trainer: L.Trainer) -> None:
+        """The training state at the end of this epoch of the round (resumed from the next epoch); the sitting
+        stopped here if its time is spent."""
+        trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
+        self._last_save = time.monotonic()
+        done = trainer.current_epoch - self.round_start_epoch + 1
+        total = self.round_end_epoch - self.round_start_epoch + 1
+        sitting.check(f"round {self.round}'s epoch {done}/{total} (|D_c| = {len(self.dm)})")
 
     @staticmethod
     def _log_projection(trainer: L.Trainer, quality: dict, step: int) -> None:
@@ -252,6 +280,7 @@ class RoundCallback(L.Callback):
         # weights_only here picks what is saved (the whole training state, optimizer and callbacks included); the
         # checkpoint holds plain values only and is read back with weights_only=True (stages/detector.py)
         trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
+        self._last_save = time.monotonic()
 
     def _acquire(self, trainer: L.Trainer, pl_module, epoch: int) -> None:
         """The next round's rows, acquired with the detector of the round that ended at ``epoch`` and appended to

@@ -2,11 +2,13 @@
 
 A paper-scale run takes many hours on two cores; a session lasts at most three. ``python -m experiments.run ...
 max_minutes=150`` starts a clock; at every safe point (before each stage of the pipeline, after each committed
-batch of labels, after each finished round of the detector, whose checkpoint is saved first) the code calls
+batch of labels, after each finished round of the detector and at each checkpoint inside a round
+(``detector.checkpoint_minutes``), the checkpoint saved first) the code calls
 :func:`check`, which raises :class:`SittingOver` once the budget is spent. Everything done so far is on disk, so
 rerunning the same command goes on where this sitting stopped (``resume: true``, ``neuralcol/utils/resume.py``).
-Work between two safe points is not interrupted: a sitting can overrun its budget by one batch of labels, one
-round's training or one stage that has no safe point inside (e.g. the handler's evaluation).
+Work between two safe points is not interrupted: a sitting can overrun its budget by one batch of labels, the
+minutes between two checkpoints of a round's training or one stage that has no safe point inside (e.g. the
+handler's evaluation).
 
 The budget is process-wide (one run per process): :func:`start` sets it, :func:`stop` clears it. Without a
 budget :func:`check` never raises.
