@@ -45,3 +45,28 @@ def test_the_rounds_best_epoch_survives_a_checkpoint_file(tmp_path):
 def test_checkpoint_minutes_must_be_a_duration(tmp_path, bad):
     with pytest.raises(ValueError, match="detector.checkpoint_minutes"):
         _callback(tmp_path, checkpoint_minutes=bad)
+
+
+def test_a_write_cut_off_leaves_the_previous_checkpoint_whole(tmp_path):
+    """Checkpoints are written to a temporary file and moved onto the old one: a write that dies half way (here an
+    exception after half the bytes; a SIGKILL leaves only the temporary file) does not truncate the checkpoint."""
+    cb = _callback(tmp_path)
+    good = b"the previous round's checkpoint"
+
+    class Trainer:
+        def save_checkpoint(self, path, weights_only=False):
+            with open(path, "wb") as f:
+                f.write(b"half of a new ")
+            if self.fail:
+                raise OSError("disk full")
+
+    (tmp_path / "d.ckpt").write_bytes(good)
+    trainer = Trainer()
+    trainer.fail = True
+    with pytest.raises(OSError, match="disk full"):
+        cb._write_checkpoint(trainer)
+    assert (tmp_path / "d.ckpt").read_bytes() == good
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.ckpt"], "no temporary file left behind"
+    trainer.fail = False
+    cb._write_checkpoint(trainer)
+    assert (tmp_path / "d.ckpt").read_bytes() == b"half of a new "

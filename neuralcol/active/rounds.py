@@ -31,6 +31,7 @@ from neuralcol.samples.datamodule import CollisionDataModule
 from neuralcol.samples.store import Origin
 from neuralcol.utils import sitting
 from neuralcol.utils.faults import fault_point
+from neuralcol.utils.files import atomic_path
 from neuralcol.utils.safe_files import plain_values
 
 
@@ -213,11 +214,18 @@ class RoundCallback(L.Callback):
         elif self.checkpoint_minutes is not None and time.monotonic() - self._last_save >= 60 * self.checkpoint_minutes:
             self._save_inside_round(trainer)
 
+    def _write_checkpoint(self, trainer: L.Trainer) -> None:
+        """The whole training state to ``checkpoint_path``, written to a temporary file and moved onto it: a kill
+        while writing leaves the previous checkpoint whole (Lightning writes in place; a truncated checkpoint would
+        cost the run its training state)."""
+        with atomic_path(self.checkpoint_path) as tmp:
+            trainer.save_checkpoint(tmp, weights_only=False)
+        self._last_save = time.monotonic()
+
     def _save_inside_round(self, trainer: L.Trainer) -> None:
         """The training state at the end of this epoch of the round (resumed from the next epoch); the sitting
         stopped here if its time is spent."""
-        trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
-        self._last_save = time.monotonic()
+        self._write_checkpoint(trainer)
         done = trainer.current_epoch - self.round_start_epoch + 1
         total = self.round_end_epoch - self.round_start_epoch + 1
         sitting.check(f"round {self.round}'s epoch {done}/{total} (|D_c| = {len(self.dm)})")
@@ -268,7 +276,7 @@ class RoundCallback(L.Callback):
             return
         # the trained round, saved before the (long) acquisition: a stop inside it resumes there
         self.pending_acquisition = True
-        trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
+        self._write_checkpoint(trainer)
         sitting.check(f"round {self.round}'s training, before its acquisition (|D_c| = {len(self.dm)})")
         self._acquire(trainer, pl_module, trainer.current_epoch)
         self._start_round(trainer, pl_module)
@@ -279,8 +287,7 @@ class RoundCallback(L.Callback):
             self.on_round(self.rounds, self.finished, echo=False)
         # weights_only here picks what is saved (the whole training state, optimizer and callbacks included); the
         # checkpoint holds plain values only and is read back with weights_only=True (stages/detector.py)
-        trainer.save_checkpoint(self.checkpoint_path, weights_only=False)
-        self._last_save = time.monotonic()
+        self._write_checkpoint(trainer)
 
     def _acquire(self, trainer: L.Trainer, pl_module, epoch: int) -> None:
         """The next round's rows, acquired with the detector of the round that ended at ``epoch`` and appended to
