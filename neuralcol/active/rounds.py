@@ -215,9 +215,10 @@ class RoundCallback(L.Callback):
             self._save_inside_round(trainer)
 
     def _write_checkpoint(self, trainer: L.Trainer) -> None:
-        """The whole training state to ``checkpoint_path``, written to a temporary file and moved onto it: a kill
-        while writing leaves the previous checkpoint whole (Lightning writes in place; a truncated checkpoint would
-        cost the run its training state)."""
+        """The whole training state to ``checkpoint_path``, written to a temporary file beside it and renamed onto
+        it: a kill while writing leaves the previous checkpoint whole. (Lightning writes to the system's temporary
+        directory and moves the file over: a copy, not a rename, across file systems; a truncated checkpoint would
+        cost the run its training state.)"""
         with atomic_path(self.checkpoint_path) as tmp:
             trainer.save_checkpoint(tmp, weights_only=False)
         self._last_save = time.monotonic()
