@@ -6,8 +6,8 @@
 # Usage (from /work/main): research/issue42/final_tables.sh [HANDLER_INPUTS (default 1000)]
 # The trees (about 20-40 min a run on one core) run for the runs whose name matches GBT_RUNS (a shell pattern,
 # default '*_s0': one reference per method; GBT_RUNS='*' for every seed); their peak memory goes to gbt_NAME.time.
-# Memory: the trees on a run over code and mesh (4.5e5 rows x 1452 pair features) peak at 14.5 GB (stop 60); pause or let the
-# queues finish first on a 24 GB machine.
+# Memory: the trees on a run over code and mesh (4.5e5 rows x 1452 pair features) peak at 14.5 GB (stop 60); pause or
+# let the queues finish first on a 24 GB machine.
 set -e
 cd /work/main
 source .venv/bin/activate
