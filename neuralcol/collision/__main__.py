@@ -26,8 +26,9 @@ EXIT_OK, EXIT_UNREADABLE = 0, 2
 
 DESCRIPTION = (
     "Label triangle meshes for self-collision. A mesh collides iff some pair of non-adjacent triangles "
-    "(triangles sharing an edge never count; triangles sharing one vertex count when they overlap elsewhere) "
-    "intersects deeper than a touching tolerance of 1e-6 mean edge lengths; 'pairs' is the number of such "
+    "(triangles sharing an edge never count; triangles sharing one vertex count when they meet away from it) "
+    "have intersecting interiors: crossings and coplanar overlaps count, touching does not. The verdict is "
+    "exact for the coordinates in the file (exact orientation predicates); 'pairs' is the number of such "
     "pairs. 'pd' is the signed penetration depth: > 0 (iff the mesh collides) it is the deepest penetration, "
     "< 0 it is minus the clearance, i.e. how far the mesh is from self-contact, capped at 1% of the rest "
     "mesh's bounding-box diagonal and measured relative to the rest mesh for parts that are already close "
@@ -37,8 +38,7 @@ EPILOG = (
     "Meshes are grouped by topology (identical face lists). Each group is labelled against a rest mesh, "
     "which sets the clearance cap and the rest distances of the clearance (and so the negative PD values): "
     "the --rest mesh if it has the group's topology, otherwise the group's first mesh in the order given. "
-    "The verdict and the pair count depend on the rest mesh only through the touching tolerance (its mean "
-    f"edge length). A folder PATH means all its {'/'.join(MESH_SUFFIXES)} files in natural order (2.obj "
+    "The verdict and the pair count do not depend on the rest mesh. A folder PATH means all its {'/'.join(MESH_SUFFIXES)} files in natural order (2.obj "
     "before 10.obj). Exit status: 0 if every mesh was read and labelled, 2 if some PATH or file could not be "
     "(reported on stderr, one line each; the other meshes are still labelled)."
 )

@@ -49,6 +49,9 @@ Definitions (``ell``, ``diag``, ``tau = touch_tol * ell``, ``cap = clearance_cap
 
 Differences from ``ExactLabeler`` (``docs/labels.md``, "python-fcl backend"):
 
+* verdict, approximate: FCL's triangle test is in floating point with its own tolerances, so configurations within
+  round-off of contact (coplanar overlaps, near-coplanar crossings, exact touching) may be judged either way;
+  ``ExactLabeler`` decides them exactly (``labeling=cpu``);
 * verdict: one-vertex neighbours that fold through each other are not counted (above);
 * colliding PD: FCL's contact depth is local to a triangle pair and not continuous: it jumps from "no
   contact" to about the height of the piercing triangle when a triangle enters another through its edge

@@ -57,12 +57,13 @@ import numpy as np
 
 from neuralcol.collision.kernels.broadphase import drop_adjacent, grid_pairs, triangle_aabbs
 from neuralcol.collision.kernels.clusters import cluster_boxes, rest_clusters, static_blocks
-from neuralcol.collision.kernels.depth import pair_depths, triangle_axes
+from neuralcol.collision.kernels.depth import triangle_axes
 from neuralcol.collision.kernels.distance import corner_cones
 from neuralcol.collision.kernels.label_pass import finish_label, label_mesh, verdict_kernel
-from neuralcol.collision.kernels.pair_terms import near_table
+from neuralcol.collision.kernels.pair_terms import counted_mask, near_table
 from neuralcol.collision.kernels.penetration import crossing_seeds, penetration
 from neuralcol.collision.kernels.pruned_pass import far_pass, far_pass_clusters, near_pass
+from neuralcol.collision.kernels.vec import GAP_ROUNDOFF
 from neuralcol.geometry.topology import edge_faces, edge_topology, vertex_neighbors
 
 
@@ -121,6 +122,16 @@ class Labels(NamedTuple):
                       np.array([lb.pd for lb in labels], dtype=np.float64),
                       np.stack([lb.pd_sub for lb in labels]).astype(np.float64))
 
+
+def gap_roundoff(vertices: np.ndarray) -> float:
+    """How far a computed gap between two triangles of this mesh (V, 3) may be off by round-off:
+    ``GAP_ROUNDOFF`` x the largest coordinate. A pair apart by more is apart without the exact test."""
+    return float(GAP_ROUNDOFF * np.abs(vertices).max()) if vertices.size else 0.0
+
+
+# The definition of the labels, part of the label caches' key (neuralcol.samples.cache): 2 = exact verdicts
+# (orientation predicates; coplanar overlaps count; touch_tol 0 by default).
+LABEL_VERSION = 2
 
 SUBSET_POSITIVE, SUBSET_NEGATIVE, SUBSET_BOUNDARY = 0, 1, 2
 SUBSET_NAMES = ("D_p", "D_n", "D_b")
@@ -227,8 +238,9 @@ class ExactLabeler(MeshByMesh):
     """
 
     backend = "cpu"  # labeling=cpu (conf/labeling/cpu.yaml)
+    label_version = LABEL_VERSION
 
-    def __init__(self, faces, rest_vertices, partition=None, touch_tol: float = 1e-6,
+    def __init__(self, faces, rest_vertices, partition=None, touch_tol: float = 0.0,
                  clearance_cap: float = 0.01, boundary_eps: float = 2e-3, cell_factor: float = 2.0,
                  prune: bool = True, far_clusters: int = 6):
         self.faces = np.ascontiguousarray(np.asarray(faces, dtype=np.int64))
@@ -322,8 +334,7 @@ class ExactLabeler(MeshByMesh):
         """All counted intersecting triangle pairs, (P, 2) int64 sorted."""
         v = self._check(vertices)
         pairs = self.candidate_pairs(v)
-        d = pair_depths(v, self.faces, pairs, self.ell)
-        return pairs[d > self.tau]
+        return pairs[counted_mask(v, self.faces, pairs, self.ell, self.tau)]
 
     def label(self, vertices) -> Label:
         """Verdict, number of counted pairs, PD and PD_i of one mesh (V, 3)."""
@@ -380,7 +391,7 @@ class ExactLabeler(MeshByMesh):
         if not len(pairs):
             return np.zeros((0, 2), np.int64)
         pairs = np.unique(pairs, axis=0)
-        return pairs[pair_depths(v, self.faces, pairs, self.ell) > self.tau]  # counted, as intersecting_pairs
+        return pairs[counted_mask(v, self.faces, pairs, self.ell, self.tau)]  # counted, as intersecting_pairs
 
     def _passes(self, v, clearance_limit: float):
         """The pruned near and far passes: counted pairs, crossing records, per-part clearances and pair-depth
@@ -390,6 +401,7 @@ class ExactLabeler(MeshByMesh):
         lo_cap, hi_cap = triangle_aabbs(v, f, 0.5 * self.cap)
         clear = np.full(self.n_parts, clearance_limit)  # a term >= the limit cannot change a limited label
         floor = np.zeros(self.n_parts)
+        gerr = gap_roundoff(v)
         rec_key = np.empty(64)
         rec_int = np.empty((64, 5), dtype=np.int64)
         # 1. near pairs, from the rest mesh's table (no broadphase): counted pairs among those with overlapping
@@ -399,21 +411,21 @@ class ExactLabeler(MeshByMesh):
         cones = corner_cones(v, f, units, normals)
         n_near, rec_key, rec_int, n_rec = near_pass(
             v, f, self._near_ptr, self._near_b, self._near_rest, self._near_shared, lo0, hi0, lo_cap, hi_cap, *axes,
-            *cones, units, normals, self.ell, self.tau, self.cap, clear, floor, self.partition, self.adj_ptr,
+            *cones, units, normals, self.ell, self.tau, gerr, self.cap, clear, floor, self.partition, self.adj_ptr,
             self.adj_idx, self.adj_eid, self.orient, rec_key, rec_int, 0, *self._near_scratch())
         # 2. far pairs, one grid: counted pairs among those with overlapping boxes, and the clearance terms of
         #    the pairs closer than the clearance they would have to beat
-        n_far, rec_key, rec_int, n_rec = self._far_pass(v, lo0, hi0, lo_cap, hi_cap, axes, clear, floor, rec_key,
-                                                        rec_int, n_rec)
+        n_far, rec_key, rec_int, n_rec = self._far_pass(v, lo0, hi0, lo_cap, hi_cap, axes, gerr, clear, floor,
+                                                        rec_key, rec_int, n_rec)
         return n_near + n_far, rec_key, rec_int, n_rec, clear, floor
 
     def _label_reference(self, v):
         """Every non-adjacent pair whose boxes are within cap (``prune=False``)."""
         lo, hi = triangle_aabbs(v, self.faces, 0.5 * self.cap)
         pairs = drop_adjacent(self.faces, grid_pairs(lo, hi, max(self.cell, self.cap)))
-        return label_mesh(v, self.faces, pairs, self.ell, self.tau, self.cap, self.partition, self.n_parts,
-                          self.adj_ptr, self.adj_idx, self.adj_eid, len(self.edges), self.closed, self.orient,
-                          self._near_ptr, self._near_b, self._near_rest)
+        return label_mesh(v, self.faces, pairs, self.ell, self.tau, gap_roundoff(v), self.cap, self.partition,
+                          self.n_parts, self.adj_ptr, self.adj_idx, self.adj_eid, len(self.edges), self.closed,
+                          self.orient, self._near_ptr, self._near_b, self._near_rest)
 
     def _near_scratch(self):
         """Work space of :func:`~neuralcol.collision.kernels.pruned_pass.near_pass`, made once per labeler (not
@@ -439,7 +451,7 @@ class ExactLabeler(MeshByMesh):
         state.pop("_corners", None)
         return state
 
-    def _far_pass(self, v, lo0, hi0, lo_cap, hi_cap, axes, clear, floor, rec_key, rec_int, n_rec):
+    def _far_pass(self, v, lo0, hi0, lo_cap, hi_cap, axes, gerr, clear, floor, rec_key, rec_int, n_rec):
         """Far pairs: those whose boxes grown by ``(r + margin) / 2`` overlap, with ``r`` the largest current
         ``min(clear_i, cap)``, found over the rest mesh's clusters
         (:func:`~neuralcol.collision.kernels.pruned_pass.far_pass_clusters`) or, with ``far_clusters=0``, with one
@@ -459,9 +471,9 @@ class ExactLabeler(MeshByMesh):
         if self.far_clusters:
             return far_pass_clusters(v, self.faces, lo, hi, *self._clusters, lo0, hi0, lo_cap, hi_cap, active,
                                      self._rest_centroids, near2, self._near_ptr, self._near_b, self._near_rest, *axes,
-                                     self.ell, self.tau, self.cap, clear, floor, self.partition, self.adj_ptr,
+                                     self.ell, self.tau, gerr, self.cap, clear, floor, self.partition, self.adj_ptr,
                                      self.adj_idx, self.adj_eid, self.orient, rec_key, rec_int, n_rec)
         return far_pass(v, self.faces, lo, hi, max(self.cell, r + margin), lo0, hi0, lo_cap, hi_cap, active,
                         self._rest_centroids, near2, self._near_ptr, self._near_b, self._near_rest, *axes, self.ell,
-                        self.tau, self.cap, clear, floor, self.partition, self.adj_ptr, self.adj_idx, self.adj_eid,
+                        self.tau, gerr, self.cap, clear, floor, self.partition, self.adj_ptr, self.adj_idx, self.adj_eid,
                         self.orient, rec_key, rec_int, n_rec)

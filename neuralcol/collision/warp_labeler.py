@@ -1,10 +1,17 @@
-"""Batched exact labeler in NVIDIA Warp: the labels of :class:`~neuralcol.collision.labeler.ExactLabeler` for a
-batch of B poses of one topology (``labeling=gpu``).
+"""Batched labeler in NVIDIA Warp: the labels of :class:`~neuralcol.collision.labeler.ExactLabeler` for a batch of B
+poses of one topology (``labeling=gpu``), with float verdicts on the device (see "Where its verdict is approximate").
 
-The definitions are those of :mod:`neuralcol.collision.labeler` (same verdict, pair count, PD and PD_i); the
-pair formulas are ports of :mod:`neuralcol.collision.kernels` with the same float64 operations in the same
-order (and no FMA contraction: ``fuse_fp`` is off for the Warp modules), so on the same device kind the values agree
-to round-off (tests: ``tests/test_gpu_labeler.py``).
+The definitions are those of :mod:`neuralcol.collision.labeler` (verdict, pair count, PD and PD_i); the pair
+formulas are ports of :mod:`neuralcol.collision.kernels` with the same float64 operations in the same order (and no
+FMA contraction: ``fuse_fp`` is off for the Warp modules), so on the same device kind the values agree to
+round-off (tests: ``tests/test_gpu_labeler.py``).
+
+**Where its verdict is approximate.** The device counts a pair when its float SAT depth exceeds ``tau``, not with
+the exact predicate; the host then judges every pair the device counted exactly (step 5), so a pose the device
+calls colliding is colliding, and one whose counted pairs were contacts within round-off is relabeled on the host
+and comes out free. What the device does not count stays uncounted: a **coplanar overlap** (SAT depth 0) and a
+crossing shallower than round-off (a tilt of ~1e-15) are called free, where ``labeling=cpu`` calls them
+intersecting. For exact verdicts everywhere use ``labeling=cpu``.
 
 Where each stage runs (B poses, F triangles, N = rows of the rest near table):
 
@@ -19,7 +26,8 @@ Where each stage runs (B poses, F triangles, N = rows of the rest near table):
    triangle distance (``far_clearances``).
 4. **Device**: per pose, counted pairs (``d > tau`` with overlapping exact boxes: ``n_pairs``), the per-part
    floor ``max(d - tau)`` and the per-part clearance ``min c`` (atomics), and the list of counted pairs.
-5. **Host** (numba, only for the poses that collide): the penetration depth of the penetrating vertices:
+5. **Host** (numba, only for the poses that collide): the device's counted pairs judged again exactly (their
+   count and per-part floor), then the penetration depth of the penetrating vertices:
    crossing edges of the counted pairs (``pair_pass`` on the device's pair list), parity of the crossings,
    flood fill of the penetrating regions and vertex depths (``finish_label``). Free poses take
    ``PD_i = -min(cap, clearance_i)`` straight from the device; colliding poses copy only their vertices to
@@ -36,7 +44,7 @@ import numpy as np
 import warp as wp
 
 from neuralcol.collision.kernels.label_pass import finish_label, pair_pass
-from neuralcol.collision.labeler import ExactLabeler, Label, Labels, split_subsets
+from neuralcol.collision.labeler import LABEL_VERSION, ExactLabeler, Label, Labels, gap_roundoff, split_subsets
 from neuralcol.collision.warp_kernels import boxes_kernel, far_kernel, near_kernel
 
 _EPS_AXIS = 1e-24  # as kernels.depth._EPS_AXIS
@@ -74,9 +82,10 @@ class WarpLabeler:
     backend = "gpu"  # labeling=gpu (conf/labeling/gpu.yaml)
     batched = True
     label_kind = "exact"
+    label_version = LABEL_VERSION
     _min_pair_list = 1024  # initial room for counted pairs per launch (grown and rerun when it overflows)
 
-    def __init__(self, faces, rest_vertices, partition=None, device: str | None = None, touch_tol: float = 1e-6,
+    def __init__(self, faces, rest_vertices, partition=None, device: str | None = None, touch_tol: float = 0.0,
                  clearance_cap: float = 0.01, boundary_eps: float = 2e-3, cell_factor: float = 2.0,
                  prune: bool = True, max_batch: int = 1024, far_clusters: int = 6):
         del prune  # the device evaluates every pair within cap (the reference); the labels are the same
@@ -232,11 +241,14 @@ class WarpLabeler:
         pd_sub = -np.minimum(self.cap, clear_h)
         hit = np.flatnonzero(n_pairs_h > 0)
         if len(hit):
-            self._finish_colliding(hit, out_pairs.numpy()[:count], host, floor_h, clear_h, pd_sub)
+            self._finish_colliding(hit, out_pairs.numpy()[:count], host, clear_h, n_pairs_h, pd_sub)
         return Labels(n_pairs_h > 0, n_pairs_h, pd_sub.max(1), pd_sub)
 
-    def _finish_colliding(self, hit, pairs, host, floor, clear, pd_sub) -> None:
-        """PD_i of the colliding poses on the host: crossing edges, flood fill and vertex depths (numba)."""
+    def _finish_colliding(self, hit, pairs, host, clear, n_pairs, pd_sub) -> None:
+        """The poses the device found colliding, on the host: the device's counted pairs judged again with the exact
+        predicate (``pair_pass``; the device counts float SAT depths > tau), their count and per-part floor, then
+        PD_i from the crossing edges, flood fill and vertex depths (numba). ``n_pairs`` and ``pd_sub`` are updated
+        in place; a pose none of whose pairs is counted exactly is free and labeled on the host in full."""
         ref = self._ref
         order = np.lexsort((pairs[:, 2], pairs[:, 1], pairs[:, 0]))
         pairs = pairs[order].astype(np.int64)
@@ -246,13 +258,18 @@ class WarpLabeler:
         for p, s, e in zip(hit, starts, ends):
             v = np.ascontiguousarray(host(int(p)), dtype=np.float64)
             pp = np.ascontiguousarray(pairs[s:e, 1:])
-            _, rec_key, rec_int, n_rec = pair_pass(v, self.faces, pp, self.ell, self.tau, self.cap, self.partition,
-                                                   np.full(k_parts, np.inf), np.zeros(k_parts), ref.adj_ptr,
-                                                   ref.adj_idx, ref.adj_eid, self.orient, ref._near_ptr, ref._near_b,
-                                                   ref._near_rest)
-            out, _ = finish_label(v, self.faces, rec_key, rec_int, n_rec, len(self.edges), floor[p].copy(),
-                                  clear[p].copy(), self.partition, k_parts, self.cap, ref.adj_ptr, ref.adj_idx,
-                                  ref.adj_eid, self.closed)
+            floor = np.zeros(k_parts)
+            n_exact, rec_key, rec_int, n_rec = pair_pass(v, self.faces, pp, self.ell, self.tau, gap_roundoff(v),
+                                                         self.cap, self.partition, np.full(k_parts, np.inf), floor,
+                                                         ref.adj_ptr, ref.adj_idx, ref.adj_eid, self.orient,
+                                                         ref._near_ptr, ref._near_b, ref._near_rest)
+            n_pairs[p] = n_exact
+            if n_exact == 0:  # the device counted contacts within round-off only: free; its clearances on the
+                pd_sub[p] = ref.label(v).pd_sub  # device took those pairs for 0, so the host labels this pose
+                continue
+            out, _ = finish_label(v, self.faces, rec_key, rec_int, n_rec, len(self.edges), floor, clear[p].copy(),
+                                  self.partition, k_parts, self.cap, ref.adj_ptr, ref.adj_idx, ref.adj_eid,
+                                  self.closed)
             pd_sub[p] = out
 
     def label(self, vertices) -> Label:

@@ -19,9 +19,11 @@ from neuralcol.utils.files import write_json_atomic
 
 
 def samples_cache_dir(cache_dir: str | Path, latent_key: str, labeler) -> Path:
-    """``<cache>/collision/<key>``: key of the latent space and of the labeler's settings."""
+    """``<cache>/collision/<key>``: key of the latent space, of the labeler's settings and of its definition's
+    version (``label_version``: labels cached by an older definition are never reused)."""
     settings = {"latent": latent_key, "eps": float(labeler.eps), "cap": float(labeler.cap),
-                "tau": float(labeler.tau), "n_parts": int(labeler.n_parts)}
+                "tau": float(labeler.tau), "n_parts": int(labeler.n_parts),
+                "version": int(getattr(labeler, "label_version", 1))}
     kind = getattr(labeler, "label_kind", "exact")
     if kind != "exact":  # another definition of the labels (e.g. python-fcl's): never mixed with ours
         settings["labels"] = str(kind)

@@ -70,6 +70,27 @@ def triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale):
 
 
 @njit(cache=True)
+def coplanar_depth(p0, p1, p2, q0, q1, q2, scale):
+    """In-plane penetration depth of two triangles that lie in one plane: the separating-axis depth over the six
+    in-plane edge normals (normal x edge) alone, i.e. the shortest translation within the plane that makes their
+    interiors disjoint. > 0 when the interiors overlap. (:func:`triangle_pair_depth` is 0 for such a pair: a
+    shift along the common normal separates it, however large the overlap.)"""
+    tiny = _EPS_AXIS * scale**4
+    n = vcross(vsub(p1, p0), vsub(p2, p0))
+    m = vcross(vsub(q1, q0), vsub(q2, q0))
+    best = np.inf
+    for ea in (vsub(p1, p0), vsub(p2, p1), vsub(p0, p2)):
+        ax = vcross(n, ea)
+        if vdot(ax, ax) > tiny:
+            best = _sat_axis(ax, p0, p1, p2, q0, q1, q2, best)
+    for fb in (vsub(q1, q0), vsub(q2, q1), vsub(q0, q2)):
+        ax = vcross(m, fb)
+        if vdot(ax, ax) > tiny:
+            best = _sat_axis(ax, p0, p1, p2, q0, q1, q2, best)
+    return best
+
+
+@njit(cache=True)
 def plane_separated(p0, p1, p2, q0, q1, q2, margin):
     """True if one triangle lies strictly beyond ``margin`` on one side of the other's plane (then their
     SAT depth is < -margin, i.e. they are apart)."""

@@ -11,7 +11,8 @@ from neuralcol.collision.kernels.vec import corners, point, vadd, vcross, vdot, 
 
 @njit(cache=True, inline="always")
 def closest_point_triangle(p, a, b, c):
-    """The point of triangle (a, b, c) closest to point p (Ericson, Real-Time Collision Detection 5.1.5)."""
+    """The point of triangle (a, b, c) closest to point p (Ericson, Real-Time Collision Detection 5.1.5). For a
+    degenerate triangle (zero area) where Ericson's formulas divide by zero, some point of the triangle."""
     ab = vsub(b, a)
     ac = vsub(c, a)
     ap = vsub(p, a)
@@ -28,7 +29,7 @@ def closest_point_triangle(p, a, b, c):
         else:
             vc = d1 * d4 - d3 * d2
             if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-                x = vadd(a, vscale(ab, d1 / (d1 - d3)))
+                x = vadd(a, vscale(ab, d1 / (d1 - d3))) if d1 != d3 else a
             else:
                 cp = vsub(p, c)
                 d5 = vdot(ab, cp)
@@ -38,14 +39,17 @@ def closest_point_triangle(p, a, b, c):
                 else:
                     vb = d5 * d2 - d1 * d6
                     if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-                        x = vadd(a, vscale(ac, d2 / (d2 - d6)))
+                        x = vadd(a, vscale(ac, d2 / (d2 - d6))) if d2 != d6 else a
                     else:
                         va = d3 * d6 - d5 * d4
                         if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-                            x = vadd(b, vscale(vsub(c, b), (d4 - d3) / ((d4 - d3) + (d5 - d6))))
-                        else:
+                            w = (d4 - d3) + (d5 - d6)
+                            x = vadd(b, vscale(vsub(c, b), (d4 - d3) / w)) if w != 0.0 else b
+                        elif va + vb + vc != 0.0:
                             denom = 1.0 / (va + vb + vc)
                             x = vadd(a, vadd(vscale(ab, vb * denom), vscale(ac, vc * denom)))
+                        else:
+                            x = a  # a degenerate triangle: a point of it (the caller's edge distances cover it)
     return x
 
 

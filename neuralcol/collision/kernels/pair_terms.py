@@ -8,14 +8,15 @@ from numba import njit
 
 from neuralcol.collision.kernels.broadphase import shared_vertex_count
 from neuralcol.collision.kernels.depth import (
-    opposite_edges_cross,
+    coplanar_depth,
     plane_separated,
     segment_crosses_triangle,
     signed_volume,
     triangle_pair_depth,
 )
 from neuralcol.collision.kernels.distance import box_gap, corner_angle, pair_distance, triangle_distance
-from neuralcol.collision.kernels.vec import BOUND_GROW, BOUND_SHRINK, corners, point
+from neuralcol.collision.kernels.predicates import COPLANAR_OVERLAP, NO_CONTACT, triangles_intersect
+from neuralcol.collision.kernels.vec import BOUND_GROW, BOUND_SHRINK, MIN_PENETRATION, corners, point
 
 
 @njit(cache=True)
@@ -84,34 +85,82 @@ def part_min(clear, part, faces, a, b, cap):
 
 
 @njit(cache=True)
-def pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap, clear, part):
-    """Depth and clearance term of one non-adjacent candidate pair: (evaluated, depth, c).
+def contact_depth(hit, p0, p1, p2, q0, q1, q2, scale):
+    """Depth of two triangles whose interiors intersect (``hit`` from
+    :func:`~neuralcol.collision.kernels.predicates.triangles_intersect`): the SAT depth of a crossing, the in-plane
+    depth of a coplanar overlap (whose SAT depth is 0)."""
+    if hit == COPLANAR_OVERLAP:
+        return coplanar_depth(p0, p1, p2, q0, q1, q2, scale)
+    return triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
+
+
+@njit(cache=True, inline="always")
+def is_counted(hit, depth, tau):
+    """A pair counts when its interiors intersect (exact) and, with a touching tolerance tau > 0, deeper than tau."""
+    return hit != NO_CONTACT and (tau <= 0.0 or depth > tau)
+
+
+@njit(cache=True, inline="always")
+def penetration_of(depth, tau):
+    """A counted pair's penetration ``depth - tau``, at least :data:`MIN_PENETRATION` (so PD > 0 iff counted)."""
+    return max(depth - tau, MIN_PENETRATION)
+
+
+@njit(cache=True)
+def pair_counted(verts, faces, a, b, scale, tau):
+    """Is the non-adjacent pair (a, b) counted (module docstring of :mod:`neuralcol.collision.labeler`)? Exact."""
+    p0, p1, p2 = corners(verts, faces, a)
+    q0, q1, q2 = corners(verts, faces, b)
+    hit = triangles_intersect(p0, p1, p2, q0, q1, q2)
+    if hit == NO_CONTACT:
+        return False
+    return tau <= 0.0 or contact_depth(hit, p0, p1, p2, q0, q1, q2, scale) > tau
+
+
+@njit(cache=True)
+def counted_mask(verts, faces, pairs, scale, tau):
+    """(P,) bool: which of the non-adjacent pairs (P, 2) are counted (:func:`pair_counted`)."""
+    out = np.empty(pairs.shape[0], dtype=np.bool_)
+    for k in range(pairs.shape[0]):
+        out[k] = pair_counted(verts, faces, pairs[k, 0], pairs[k, 1], scale, tau)
+    return out
+
+
+@njit(cache=True)
+def pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, gerr, cap, clear, part):
+    """Verdict, penetration and clearance term of one non-adjacent candidate pair: (evaluated, counted, pen, c).
 
     ``idx`` is the pair's near-table row (-1: far). ``evaluated`` is False for a far pair that provably cannot
-    lower any clearance of its parts below the current one (then depth and c are not computed).
+    lower any clearance of its parts below the current one (then the rest is not computed). ``counted``: the
+    exact verdict (:func:`is_counted`); ``pen`` > 0 its penetration when counted (:func:`penetration_of`), else 0.
+    ``gerr``: the round-off bound of a computed gap (``GAP_ROUNDOFF`` x the largest coordinate); a pair whose SAT
+    depth is below ``-gerr`` is apart without the exact test.
     """
     p0, p1, p2 = corners(verts, faces, a)
     q0, q1, q2 = corners(verts, faces, b)
     near = idx >= 0
+    hit = NO_CONTACT
     if shared == 1:
-        if opposite_edges_cross(verts, faces, a, b):
-            depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
-        else:
-            depth = -1.0  # no overlap beyond the shared vertex
+        hit = triangles_intersect(p0, p1, p2, q0, q1, q2)
+        depth = contact_depth(hit, p0, p1, p2, q0, q1, q2, scale) if hit != NO_CONTACT else -1.0
     elif near:
         depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
+        if depth >= -gerr:
+            hit = triangles_intersect(p0, p1, p2, q0, q1, q2)
+            if hit == COPLANAR_OVERLAP:
+                depth = coplanar_depth(p0, p1, p2, q0, q1, q2, scale)
     else:
         lb = box_gap(p0, p1, p2, q0, q1, q2)
         if lb > 0.0 and lb * BOUND_SHRINK >= part_min(clear, part, faces, a, b, cap):
-            return False, 0.0, 0.0  # apart by more than any clearance this pair could still lower
+            return False, False, 0.0, 0.0  # apart by more than any clearance this pair could still lower
         if plane_separated(p0, p1, p2, q0, q1, q2, cap * BOUND_GROW):
-            return False, 0.0, 0.0  # apart by more than cap: no overlap, clearance term >= cap
-        if plane_separated(p0, p1, p2, q0, q1, q2, tau):
-            depth = -1.0
-        else:
-            depth = triangle_pair_depth(p0, p1, p2, q0, q1, q2, scale)
-    if depth > tau:
-        c = 0.0
+            return False, False, 0.0, 0.0  # apart by more than cap: no overlap, clearance term >= cap
+        hit = triangles_intersect(p0, p1, p2, q0, q1, q2)
+        depth = contact_depth(hit, p0, p1, p2, q0, q1, q2, scale) if hit != NO_CONTACT else -1.0
+    counted = is_counted(hit, depth, tau)
+    pen = penetration_of(depth, tau) if counted else 0.0
+    if hit != NO_CONTACT:
+        c = 0.0  # interiors intersect (touching within tau when not counted)
     elif near:
         r = near_rest[idx]
         if r <= 0.0:
@@ -121,8 +170,8 @@ def pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap, clea
         else:
             c = cap * max(-depth, 0.0) / r
     else:
-        c = 0.0 if depth > 0.0 else triangle_distance(p0, p1, p2, q0, q1, q2)
-    return True, depth, c
+        c = triangle_distance(p0, p1, p2, q0, q1, q2)
+    return True, counted, pen, c
 
 
 @njit(cache=True, inline="always")
@@ -192,11 +241,10 @@ def add_crossings(verts, faces, a, b, adj_ptr, adj_idx, adj_eid, orient, rec_key
 
 
 @njit(cache=True, inline="always")
-def count_pair(verts, faces, a, b, depth, tau, part, floor, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int,
-               n_rec):
-    """A counted pair (depth > tau): raise the floor of its parts and append its crossing records."""
+def count_pair(verts, faces, a, b, pen, part, floor, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec):
+    """A counted pair of penetration ``pen`` > 0: raise the floor of its parts and append its crossing records."""
     for t in (a, b):
         for i in range(3):
             pi = part[faces[t, i]]
-            floor[pi] = max(floor[pi], depth - tau)
+            floor[pi] = max(floor[pi], pen)
     return add_crossings(verts, faces, a, b, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)

@@ -17,16 +17,16 @@ from neuralcol.collision.kernels.vec import BOUND_SHRINK, corners
 
 @njit(cache=True)
 def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, lo_cap, hi_cap, axes, inv, ax_lo,
-              ax_hi, cone_axis, cone_rho, cone_units, cone_normals, scale, tau, cap, clear, floor, part, adj_ptr,
+              ax_hi, cone_axis, cone_rho, cone_units, cone_normals, scale, tau, gerr, cap, clear, floor, part, adj_ptr,
               adj_idx, adj_eid, orient, rec_key, rec_int, n_rec, scratch_i, scratch_f):
     """Every near pair (the rest mesh's table) that the reference considers (boxes within cap): counted pairs,
     their crossings, and the clearance terms that can lower a part's clearance. Lowers ``clear`` and raises
     ``floor`` in place.
 
-    A pair whose boxes overlap may be counted (d > tau); a pair whose boxes are disjoint cannot (as in the
-    reference, whose counted pairs come from overlapping boxes). The per-triangle SAT axes give
-    ``g <= -depth`` exactly (:func:`axes_gap`), so a pair not sharing a vertex with ``g > tau`` is not
-    counted and its term ``c = cap * max(-depth, 0) / r >= cap * g / r``: it is evaluated only if that bound
+    A pair whose boxes overlap may be counted; a pair whose boxes are disjoint cannot. The per-triangle SAT axes
+    give ``g <= -depth`` exactly (:func:`axes_gap`), and a computed gap is off by at most ``gerr``, so a pair not
+    sharing a vertex with ``g > tau + gerr`` is apart (not counted) and its term
+    ``c = cap * max(-depth, 0) / r >= cap * g / r``: it is evaluated only if that bound
     is below the largest current clearance of its parts (then it might lower one). To make that threshold
     low early, the pair with the smallest bound of each part is evaluated first. Pairs sharing a vertex and
     pairs touching at rest (no bound) are always evaluated, as in the reference. Skipping a term that is
@@ -48,6 +48,7 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
     best_bound = np.full(n_parts, np.inf)
     best_k = np.full(n_parts, -1, dtype=np.int64)
     n_pairs = 0
+    sep = tau + gerr  # a computed gap beyond this proves the pair apart
     for a in range(n_faces):
         p0, p1, p2 = corners(verts, faces, a)
         t_all = min(clear.max(), cap)  # no term >= this can lower any clearance (they only fall)
@@ -68,20 +69,20 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
             else:
                 q0, q1, q2 = corners(verts, faces, b)
                 g = axes_gap(axes, inv, ax_lo, ax_hi, a, q0, q1, q2)
-                if (not overlap or g > tau) and (r <= 0.0 or cap * (g * BOUND_SHRINK) / r >= t_all):
+                if (not overlap or g > sep) and (r <= 0.0 or cap * (g * BOUND_SHRINK) / r >= t_all):
                     continue  # not counted, and its term cannot lower any clearance
                 g = max(g, axes_gap(axes, inv, ax_lo, ax_hi, b, p0, p1, p2))
-                if not overlap or g > tau:  # not counted; c >= bound (c = cap when the pair touches at rest)
+                if not overlap or g > sep:  # not counted; c >= bound (c = cap when the pair touches at rest)
                     bound = cap if r <= 0.0 else cap * (g * BOUND_SHRINK) / r
             if overlap and bound == -np.inf:  # may be counted: evaluate now
                 shared = 1 if near_shared[idx] else 0
-                evaluated, depth, c = pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau, cap,
-                                                 clear, part)
+                evaluated, counted, pen, c = pair_terms(verts, faces, a, b, shared, idx, near_rest, scale, tau,
+                                                        gerr, cap, clear, part)
                 if evaluated:
                     lower_clearance(clear, part, faces, a, b, c)
-                    if depth > tau:
+                    if counted:
                         n_pairs += 1
-                        rec_key, rec_int, n_rec = count_pair(verts, faces, a, b, depth, tau, part, floor, adj_ptr,
+                        rec_key, rec_int, n_rec = count_pair(verts, faces, a, b, pen, part, floor, adj_ptr,
                                                              adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)
                 continue
             if bound >= t_all:
@@ -117,7 +118,7 @@ def near_pass(verts, faces, near_ptr, near_b, near_rest, near_shared, lo0, hi0, 
             c = cap if r <= 0.0 else cap * corner_gap(faces, a, b, cone_units, cone_normals) / r
             lower_clearance(clear, part, faces, a, b, c)
             continue
-        evaluated, depth, c = pair_terms(verts, faces, a, b, 0, idx, near_rest, scale, tau, cap, clear, part)
+        evaluated, _, _, c = pair_terms(verts, faces, a, b, 0, idx, near_rest, scale, tau, gerr, cap, clear, part)
         if evaluated:
             lower_clearance(clear, part, faces, a, b, c)
     return n_pairs, rec_key, rec_int, n_rec
@@ -133,8 +134,8 @@ def _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi):
 
 @njit(cache=True)
 def far_pairs(verts, faces, cand, n_cand, lo0, hi0, lo_cap, hi_cap, tri_thr, pts, skip2, near_ptr, near_b, near_rest,
-              axes, inv, ax_lo, ax_hi, scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key,
-              rec_int, n_rec):
+              axes, inv, ax_lo, ax_hi, scale, tau, gerr, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient,
+              rec_key, rec_int, n_rec):
     """The far pass's treatment of the candidate pairs ``cand[:n_cand]`` (a < b, boxes grown as the broadphase grew
     them overlap), one after the other: a pair is skipped if it is adjacent or near (or, with disjoint boxes ``lo0``/
     ``hi0``, when neither triangle has a clearance to lower (``tri_thr``, :func:`far_thresholds`) or the rest
@@ -157,14 +158,15 @@ def far_pairs(verts, faces, cand, n_cand, lo0, hi0, lo_cap, hi_cap, tri_thr, pts
             if shared_vertex_count(faces, a, b) > 0 or near_index(near_ptr, near_b, a, b) >= 0:
                 continue  # adjacent or near: not a far pair
             g = _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi)
-            if g > tau and g * BOUND_SHRINK >= part_min(clear, part, faces, a, b, cap):
-                continue  # not counted (depth <= -g), and its distance >= g cannot lower a clearance
-            evaluated, depth, c = pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear, part)
+            if g > tau + gerr and g * BOUND_SHRINK >= part_min(clear, part, faces, a, b, cap):
+                continue  # apart (depth <= -g, beyond round-off), and its distance >= g cannot lower a clearance
+            evaluated, counted, pen, c = pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, gerr, cap, clear,
+                                                    part)
             if evaluated:
                 lower_clearance(clear, part, faces, a, b, c)
-                if depth > tau:
+                if counted:
                     n_pairs += 1
-                    rec_key, rec_int, n_rec = count_pair(verts, faces, a, b, depth, tau, part, floor, adj_ptr, adj_idx,
+                    rec_key, rec_int, n_rec = count_pair(verts, faces, a, b, pen, part, floor, adj_ptr, adj_idx,
                                                          adj_eid, orient, rec_key, rec_int, n_rec)
             continue
         t = max(tri_thr[a], tri_thr[b])  # >= the pair's current threshold (clearances only fall)
@@ -187,7 +189,7 @@ def far_pairs(verts, faces, cand, n_cand, lo0, hi0, lo_cap, hi_cap, tri_thr, pts
         thr = part_min(clear, part, faces, a, b, cap)
         if thr <= 0.0 or _far_gap(verts, faces, a, b, axes, inv, ax_lo, ax_hi) * BOUND_SHRINK >= thr:
             continue  # its distance >= the gap cannot lower a clearance
-        evaluated, depth, c = pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, cap, clear, part)
+        evaluated, _, _, c = pair_terms(verts, faces, a, b, 0, -1, near_rest, scale, tau, gerr, cap, clear, part)
         if evaluated:
             lower_clearance(clear, part, faces, a, b, c)
     return n_pairs, rec_key, rec_int, n_rec
@@ -208,8 +210,8 @@ def far_thresholds(faces, active, clear, part, cap):
 
 @njit(cache=True)
 def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, skip2, near_ptr, near_b, near_rest,
-             axes, inv, ax_lo, ax_hi, scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key,
-             rec_int, n_rec):
+             axes, inv, ax_lo, ax_hi, scale, tau, gerr, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient,
+             rec_key, rec_int, n_rec):
     """Every far pair (not adjacent, sharing no vertex, not in the near table) that matters, found with one
     uniform grid over the boxes ``lo``/``hi`` (grown by at least half the largest clearance still to beat):
     far pairs with overlapping boxes are evaluated in full (they may be counted), far pairs with disjoint
@@ -232,8 +234,8 @@ def far_pass(verts, faces, lo, hi, cell, lo0, hi0, lo_cap, hi_cap, active, pts, 
             break
         size *= 4
     return far_pairs(verts, faces, cand, n_cand, lo0, hi0, lo_cap, hi_cap, far_thresholds(faces, active, clear, part,
-                     cap), pts, skip2, near_ptr, near_b, near_rest, axes, inv, ax_lo, ax_hi, scale, tau, cap, clear,
-                     floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)
+                     cap), pts, skip2, near_ptr, near_b, near_rest, axes, inv, ax_lo, ax_hi, scale, tau, gerr, cap,
+                     clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)
 
 
 @njit(cache=True)
@@ -294,7 +296,8 @@ def _grid_fill(cand, lo, hi, cell_keys, cell_start, ids, ilo, dims):
 @njit(cache=True)
 def far_pass_clusters(verts, faces, lo, hi, order, cl_ptr, rest_lo, rest_hi, blocks, masks, n_bits, cluster_cell, lo0,
                       hi0, lo_cap, hi_cap, active, pts, skip2, near_ptr, near_b, near_rest, axes, inv, ax_lo, ax_hi,
-                      scale, tau, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec):
+                      scale, tau, gerr, cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int,
+                      n_rec):
     """:func:`far_pass` with the rest mesh's clusters instead of a grid over every triangle: the candidates of
     :func:`~neuralcol.collision.kernels.clusters.cluster_candidates` (the pairs of the grid minus adjacent and near
     ones, which :func:`far_pairs` skips anyway), treated by :func:`far_pairs` in another order (the labels do not
@@ -305,5 +308,5 @@ def far_pass_clusters(verts, faces, lo, hi, order, cl_ptr, rest_lo, rest_hi, blo
     """
     cand = cluster_candidates(lo, hi, order, cl_ptr, rest_lo, rest_hi, blocks, masks, n_bits, cluster_cell)
     return far_pairs(verts, faces, cand, cand.shape[0], lo0, hi0, lo_cap, hi_cap, far_thresholds(faces, active, clear,
-                     part, cap), pts, skip2, near_ptr, near_b, near_rest, axes, inv, ax_lo, ax_hi, scale, tau, cap,
-                     clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)
+                     part, cap), pts, skip2, near_ptr, near_b, near_rest, axes, inv, ax_lo, ax_hi, scale, tau, gerr,
+                     cap, clear, floor, part, adj_ptr, adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)

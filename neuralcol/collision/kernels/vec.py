@@ -11,6 +11,16 @@ from numba import njit
 BOUND_SHRINK = 1.0 - 1e-9
 BOUND_GROW = 1.0 + 1e-9
 
+# A gap between two triangles computed along a separating axis (SAT depth, ``axes_gap``) is off from the gap along
+# that axis by at most ~10 unit round-offs of the largest coordinate (each projection is a 3-term dot product
+# scaled by the axis' inverse length). So a computed gap > GAP_ROUNDOFF * max|coordinate| proves the triangles
+# apart; below that, the exact predicate (:mod:`~neuralcol.collision.kernels.predicates`) decides.
+GAP_ROUNDOFF = 2.0**-45
+
+# The penetration of a counted pair whose computed depth is <= 0 (an exact intersection below round-off: a
+# crossing at a tilt of ~1e-16): the smallest normal float32, so PD > 0 survives a cast to float32.
+MIN_PENETRATION = 2.0**-126
+
 
 @njit(cache=True, inline="always")
 def vsub(a, b):
