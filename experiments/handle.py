@@ -12,18 +12,22 @@ a hand to keep in place) instead of close to its latent code. Results the exact 
 self-penetrating are handled again with the larger margins of the run's ``handler.verify_margins`` (or
 ``--margins``), and the result with the lowest PD is kept; ``--no-verify`` trusts the detector alone. For
 meshes, verification includes the contact repair (``handler.repair``: intersecting triangles pushed apart, tried
-on the input first; margin ``repair`` in the table); ``--no-repair`` turns it off.
+on the input first; margin ``repair`` in the table); ``--no-repair`` turns it off. A mesh the exact labeler calls
+free (PD <= 0) is returned untouched, at the cost of its exact label: not encoded, not handled, written as given (an
+``.obj`` input copied byte for byte), margin ``untouched`` in the table.
 
 A folder INPUT stands for its mesh files in name order. ``--sequence``: the meshes are the frames of a motion, in
 the order given, resolved so that the corrections vary smoothly in time (``TrainedRun.resolve_sequence``: each
 frame warm-started from the previous frame's correction; ``--rate`` the largest change of the correction between
 frames, as a multiple of the input's largest frame-to-frame move, default the run's ``handler.sequence.rate``);
-the table then gives each frame's verdict before and after and the correction's change from the previous frame.
+the table then gives each frame's verdict before and after, whether it came back untouched (bit for bit: free frames
+away from a collision's ramp) and the correction's change from the previous frame.
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 from pathlib import Path
 
@@ -44,9 +48,11 @@ def load_run(run_dir: Path) -> tuple:
     return run.cfg, run.space, run.detector
 
 
-def read_inputs(paths: list[Path], space: LatentSpace) -> tuple[list[str], torch.Tensor, torch.Tensor | None]:
-    """(names, codes (N, D), input vertices (N, V, 3) or None when the inputs are codes)."""
-    names, codes, verts = [], [], []
+def read_inputs(paths: list[Path], space: LatentSpace) -> tuple[list[str], torch.Tensor | None, torch.Tensor | None]:
+    """(names, codes (N, D) or None, input vertices (N, V, 3) or None): meshes only give their vertices (no codes:
+    ``resolve`` encodes the colliding ones and leaves the free ones untouched); codes, or codes mixed with meshes,
+    give codes (the meshes encoded) and no vertices."""
+    names, parts = [], []
     n_vertices = space.acap.n_vertices
     for p in paths:
         if p.suffix.lower() == ".npy":
@@ -58,20 +64,31 @@ def read_inputs(paths: list[Path], space: LatentSpace) -> tuple[list[str], torch
                 raise UserInputError(f"{p}: holds an array of shape {z.shape}; expected finite latent codes of "
                                      f"size {space.dim}, shape ({space.dim},) or (N, {space.dim})")
             names += [p.stem] if len(z) == 1 else [f"{p.stem}_{i}" for i in range(len(z))]
-            codes.append(torch.as_tensor(z, dtype=torch.float32))
+            parts.append((torch.as_tensor(z, dtype=torch.float32), False))
         elif p.suffix.lower() in MESH_SUFFIXES:
             v, f = read_mesh(p)
             if len(v) != n_vertices or not np.array_equal(f, space.faces.numpy()):
                 raise UserInputError(f"{p}: has {len(v)} vertices and {len(f)} faces; this run's data set has "
                                      f"{n_vertices} and {len(space.faces)}, with the same face list")
             names.append(p.stem)
-            verts.append(torch.as_tensor(v[None]))
-            codes.append(space.encode(torch.as_tensor(v[None])))
+            parts.append((torch.as_tensor(v[None]), True))
         else:
             raise UserInputError(f"{p}: unsupported input '{p.suffix}'; give meshes ({', '.join(MESH_SUFFIXES)}) "
                                  "or .npy latent codes")
-    mesh_inputs = verts and len(verts) == len(paths)
-    return names, torch.cat(codes).float(), torch.cat(verts) if mesh_inputs else None
+    if parts and all(is_mesh for _, is_mesh in parts):
+        return names, None, torch.cat([v for v, _ in parts])
+    codes = [space.encode(x) if is_mesh else x for x, is_mesh in parts]
+    return names, torch.cat(codes).float() if codes else None, None
+
+
+def write_result(out_path: Path, vertices: np.ndarray, faces: np.ndarray, source: Path | None,
+                 untouched: bool) -> None:
+    """Write one result mesh; an untouched ``.obj`` input is copied byte for byte (its own values, not rewritten at
+    the writer's precision)."""
+    if untouched and source is not None and source.suffix.lower() == out_path.suffix.lower():
+        shutil.copyfile(source, out_path)
+    else:
+        write_mesh(out_path, vertices, faces)
 
 
 def expand_folders(paths: list[Path]) -> list[Path]:
@@ -100,22 +117,25 @@ def input_kinds(run: TrainedRun, v_user: torch.Tensor | None, pd_input: np.ndarr
 
 def resolve_frames(run: TrainedRun, names: list[str], v_user: torch.Tensor, args: argparse.Namespace,
                    subset, out: Path) -> None:
-    """``--sequence``: resolve the frames as a motion, write them and print the per-frame table."""
+    """``--sequence``: resolve the frames as a motion, write them and print the per-frame table (``untouched``: the
+    frame came back bit for bit, its file copied where it is an ``.obj``)."""
     before = run.label(v_user).collides
     seq = run.resolve_sequence(v_user, rate=args.rate, objective=args.objective, verify=not args.no_verify,
                                margins=args.margins, subset=subset,
                                repair=False if getattr(args, "no_repair", False) else None)
     diag = run.diagonal
-    print(f"{'frame':<24} {'collides in':>11} {'after':>6}  resolved  correction change (% of diagonal)")
+    same = (seq.vertices == v_user.numpy()).all(axis=(1, 2))
+    print(f"{'frame':<24} {'collides in':>11} {'after':>6}  resolved  untouched  correction change (% of diagonal)")
     for i, name in enumerate(names):
-        write_mesh(out / f"{name}_resolved.obj", seq.vertices[i], run.faces)
+        write_result(out / f"{name}_resolved.obj", seq.vertices[i], run.faces, args.inputs[i], bool(same[i]))
         change = f"{100 * seq.correction_jump[i - 1] / diag:.3f}" if i else "-"
         print(f"{name:<24} {str(bool(before[i])):>11} {str(bool(seq.collides[i])):>6}  {str(bool(seq.resolved[i])):>8}"
-              f"  {change}")
+              f"  {str(bool(same[i])):>9}  {change}")
     sys.stdout.flush()
-    print(f"wrote {len(names)} frames to {out}: {int((~seq.collides).sum())} free; the correction's largest change "
-          f"between frames {100 * seq.correction_jump.max(initial=0) / diag:.3f} % of the diagonal, the input's "
-          f"{100 * seq.input_jump.max(initial=0) / diag:.3f} % (ratio {seq.jump_ratio:.2f})", file=sys.stderr)
+    print(f"wrote {len(names)} frames to {out}: {int((~seq.collides).sum())} free, {int(same.sum())} untouched; the "
+          f"correction's largest change between frames {100 * seq.correction_jump.max(initial=0) / diag:.3f} % of the "
+          f"diagonal, the input's {100 * seq.input_jump.max(initial=0) / diag:.3f} % (ratio {seq.jump_ratio:.2f})",
+          file=sys.stderr)
 
 
 @report_user_errors
@@ -163,14 +183,16 @@ def resolve_files(run: TrainedRun, args: argparse.Namespace) -> None:
                       verify=not args.no_verify, margins=args.margins, subset=subset,
                       repair=False if getattr(args, "no_repair", False) else None)
     after = res.vertices.double().cpu().numpy()
+    untouched = res.untouched if res.untouched is not None else np.zeros(len(names), bool)
     kinds = input_kinds(run, v_user, res.pd_input)
     print(f"{'input':<24} {'PD input':>10} {'PD decoded':>11} {'PD result':>10}  |Z - Z_user|  margin  "
           "moved (median / max, % of diagonal)  kind of collision (input)")
     for i, name in enumerate(names):
-        write_mesh(out / f"{name}_resolved.obj", after[i], run.faces)
+        write_result(out / f"{name}_resolved.obj", after[i], run.faces, args.inputs[i] if v_user is not None else None,
+                     bool(untouched[i]))
+        step = "-" if untouched[i] else f"{float((res.codes[i] - res.codes_before[i]).norm()):.2f}"
         print(f"{name:<24} {res.pd_input[i]:>10.4g} {res.pd_before[i]:>11.4g} {res.pd_after[i]:>10.4g}  "
-              f"{float((res.codes[i] - res.codes_before[i]).norm()):>12.2f}  "
-              f"{'repair' if res.repaired is not None and res.repaired[i] else f'{res.margin[i]:g}'}  "
+              f"{step:>12}  {margin_label(res, i)}  "
               f"{100 * res.displacement_median[i] / res.diagonal:.3f} / "
               f"{100 * res.displacement_max[i] / res.diagonal:.3f}  {kinds[i]}")
     sys.stdout.flush()
@@ -180,8 +202,17 @@ def resolve_files(run: TrainedRun, args: argparse.Namespace) -> None:
               "its answer there is an extrapolation; the exact PD columns and the contact repair do not depend on it",
               file=sys.stderr)
     print(f"wrote {len(names)} meshes to {out} (PD > 0: self-penetrating, in units of the mesh; margin: the "
-          "detector-logit margin of the kept result, or repair: the contact repair's mesh)", file=sys.stderr)
+          "detector-logit margin of the kept result, repair: the contact repair's mesh, untouched: a free input "
+          f"returned as given; {int(untouched.sum())} of {len(names)} untouched)", file=sys.stderr)
 
+
+def margin_label(res, i: int) -> str:
+    """The margin column of input ``i``: ``untouched`` (free input returned as given), ``repair`` or the margin."""
+    if res.untouched is not None and res.untouched[i]:
+        return "untouched"
+    if res.repaired is not None and res.repaired[i]:
+        return "repair"
+    return f"{res.margin[i]:g}"
 
 if __name__ == "__main__":
     main()

@@ -137,32 +137,39 @@ def test_detect_fast_forms(trained):
 
 
 def test_resolve_latent_and_cartesian(trained):
-    z = _codes(trained, 3, 1)
+    """Two colliding meshes through the neural path (no repair) and a free one, which comes back as given."""
+    z = _codes(trained, 200, 7)
+    hit = trained.label(trained.decode(z)).collides
+    z = z[torch.as_tensor(np.concatenate([np.flatnonzero(hit)[:2], np.flatnonzero(~hit)[:1]]))]
     verts = trained.decode(z)
-    res = trained.resolve(verts, margins=[4.0])
+    res = trained.resolve(verts, margins=[4.0], repair=False)
     assert res.vertices.shape == (3, trained.n_vertices, 3) and res.codes.shape == (3, trained.dim)
-    torch.testing.assert_close(res.codes_before, trained.encode(verts))
     np.testing.assert_array_equal(res.pd_input, trained.label(verts).pd)
-    np.testing.assert_array_equal(res.pd_before, trained.label(trained.decode(res.codes_before)).pd)
-    finite = np.isfinite(res.pd_after)
+    # the free input comes back as given, without encoder or handler (tests/test_resolve_free.py)
+    assert res.untouched.tolist() == [False, False, True] and np.isnan(res.margin[2])
+    assert torch.equal(res.vertices[2], verts[2].double()) and torch.isnan(res.codes_before[2]).all()
+    h = slice(0, 2)
+    torch.testing.assert_close(res.codes_before[h], trained.encode(verts[h]))
+    np.testing.assert_array_equal(res.pd_before[h], trained.label(trained.decode(res.codes_before[h])).pd)
+    finite = np.isfinite(res.pd_after) & ~res.untouched
     keep = torch.as_tensor(finite)
     np.testing.assert_array_equal(res.pd_after[finite], trained.label(res.vertices[finite].double()).pd)
-    assert set(res.margin) <= {3.0, 4.0}
+    assert set(res.margin[h]) <= {3.0, 4.0}
     # a mesh comes back as the user's mesh, corrected: input + (D(Z) - D(Z_user)), median shift removed
     from neuralcol.handler.resolve import transfer_displacement
 
-    torch.testing.assert_close(res.decoded, trained.decode(res.codes))
-    expect = transfer_displacement(verts.double(), trained.decode(res.codes_before).double(), res.decoded.double())
-    torch.testing.assert_close(res.vertices[keep], expect[keep])
+    torch.testing.assert_close(res.decoded[h], trained.decode(res.codes[h]))
+    expect = transfer_displacement(verts[h].double(), trained.decode(res.codes_before[h]).double(),
+                                   res.decoded[h].double())
+    torch.testing.assert_close(res.vertices[h][keep[h]], expect[keep[h]])
     moved = (res.vertices - verts.double()).norm(dim=-1)
     np.testing.assert_allclose(res.displacement_max, moved.max(1).values.numpy(), rtol=1e-4, atol=1e-6)
     assert res.diagonal == pytest.approx(float(np.linalg.norm(np.ptp(trained.space.rest_vertices.numpy(), 0))))
-    same = torch.as_tensor(finite) & (res.codes == res.codes_before).all(-1)
-    assert torch.equal(res.vertices[same], verts[same].double())  # a code the handler left alone: the input, unchanged
     # detector-guided: the handler lowers the detector's logit (this tiny detector cannot reach -margin)
     assert (trained.detect(res.codes[keep]).logit < trained.detect(res.codes_before[keep]).logit).all()
-    codes_only = trained.resolve(res.codes_before, verify=False)
+    codes_only = trained.resolve(res.codes_before[h], verify=False)
     assert np.isnan(codes_only.pd_input).all() and (codes_only.margin == 3.0).all()
+    assert codes_only.untouched is None
     cart = trained.resolve(verts[:1], objective="cartesian", verify=False, subset=[0, 1, 2])
     assert cart.vertices.shape == (1, trained.n_vertices, 3)
     with pytest.raises(UserInputError, match="needs meshes"):

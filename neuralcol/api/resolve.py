@@ -28,7 +28,9 @@ class ResolveMixin:
         """Resolve a motion: every frame freed, the corrections varying smoothly in time (issue 43;
         :mod:`neuralcol.handler.sequence`): each frame is warm-started from the previous frame's correction and
         resolved (:meth:`resolve`, one mesh, with ``resolve_kwargs``) only where that start collides; corrections
-        decay where no longer needed and ramp in before a collision, at most ``rate`` per vertex and frame.
+        decay where no longer needed and ramp in before a collision, at most ``rate`` per vertex and frame. Free
+        frames outside a correction's ramp come back bit for bit (a motion whose frames are all free: unchanged, at
+        the cost of one exact verdict a frame); free frames within a ramp move, by design, so the motion stays smooth.
 
         Args:
             frames: (T, V, 3) the frames in order (T >= 2), numpy or torch.
@@ -79,6 +81,14 @@ class ResolveMixin:
         handled again with the larger margins (``margins``, default the run's ``handler.verify_margins``) and
         the lowest-PD result is kept; ``verify=False`` trusts the detector (PD after is still measured).
 
+        A **mesh the exact labeler calls free** (PD <= 0; every mesh input is labeled exactly first, with or
+        without ``verify``) comes back untouched: ``vertices`` are its own float64 values, bit for bit,
+        ``pd_input`` = ``pd_after`` its PD, the displacements 0, ``untouched`` True, ``margin`` NaN, ``repaired``
+        False; it goes through neither the encoder nor the handler nor the repair, so ``codes``, ``codes_before``,
+        ``decoded`` and ``pd_before`` (the round trip's PD) are NaN for it (``shrink`` / ``cap`` NaN; with
+        ``certify`` its verdict is exact and free). A call whose meshes are all free costs one exact label per mesh
+        (resolve of one free SCAPE mesh: 13.7 ms, docs/real_meshes.md). Only the colliding meshes are moved.
+
         Args:
             vertices_or_codes: meshes (N, V, 3) / (V, 3) or codes (N, D) / (D,), numpy or torch.
             objective: ``"latent"`` (stay close to the input's code) or ``"cartesian"`` (stay close to the input
@@ -115,7 +125,6 @@ class ResolveMixin:
             detector_logits,
             displacement_stats,
             handle_codes,
-            resolve_meshes,
             verified_escalation,
         )
 
@@ -132,7 +141,7 @@ class ResolveMixin:
             band = self.band(certify)
         x = vertices_or_codes
         v_user = self._vertices(x) if self._is_vertices(x) else None
-        z_user = (self.encode(v_user) if v_user is not None else self._codes(x)).float().cpu()
+        z_user = None if v_user is not None else self._codes(x).float().cpu()
         if objective == "cartesian":
             if v_user is None:
                 raise UserInputError("objective='cartesian' needs meshes (B, V, 3): their vertices are the targets")
@@ -141,8 +150,8 @@ class ResolveMixin:
                 if len(subset) == 0 or subset.min() < 0 or subset.max() >= self.n_vertices:
                     raise UserInputError(f"subset: vertex indices must lie in [0, {self.n_vertices})")
             target = CartesianObjective(self.space, v_user.float().to(self.device), vertices=subset)
-        else:
-            target = LatentObjective(z_user.to(self.device))
+        else:  # (meshes: resolve_meshes' default objective, the same |Z - Z_user|^2 / 2 on the codes it encodes)
+            target = None if v_user is not None else LatentObjective(z_user.to(self.device))
         settings = alm_settings(self.cfg.handler.alm)
         margins = [] if not verify else \
             [float(m) for m in (margins if margins is not None else
@@ -151,25 +160,10 @@ class ResolveMixin:
         if bad:
             raise UserInputError(f"margins {bad} must exceed handler.alm.margin = {settings.margin}")
         batch = int(self.cfg.handler.batch_size)
+        if v_user is not None:
+            return self._resolve_meshes(v_user, target, settings, margins, batch, anchor, verify, repair, band)
         used_margins = np.array([settings.margin, *margins])
         diag = self.diagonal
-        if v_user is not None:
-            rep = self.repair_settings(repair) if verify else None
-            if rep is not None:
-                self.label_pool()  # the repair asks the run's labeler in this process
-            res = resolve_meshes(self.on_codes, self.space, v_user, self._pd, settings, margins, batch,
-                                 objective=target, anchor=anchor, z_user=z_user, repair=rep,
-                                 labeler=self._exact if rep is not None else None, certify=band, skip_freed=True)
-            used_margins = np.append(used_margins, np.nan)
-            moved = displacement_stats(v_user.numpy(), res.vertices, diag)
-            return Resolved(vertices=torch.as_tensor(res.vertices, dtype=torch.float64, device=self.device),
-                            codes=res.codes.to(self.device), codes_before=z_user.to(self.device),
-                            pd_input=res.pd_input, pd_before=self._pd(self.decode(z_user)), pd_after=res.pd_after,
-                            margin=used_margins[res.stage], displacement_mean=moved["mean"],
-                            displacement_max=moved["max"], displacement_median=moved["median"], diagonal=diag,
-                            decoded=torch.as_tensor(res.decoded, dtype=torch.float32, device=self.device),
-                            repaired=res.repaired, exact=res.exact, free=res.free, exact_share=res.exact_share,
-                            shrink=res.shrink, cap=res.cap)
 
         def handle(rows: np.ndarray, margin: float):
             idx_map = torch.as_tensor(rows, device=self.device)
@@ -202,3 +196,35 @@ class ResolveMixin:
                         displacement_mean=moved["mean"], displacement_max=moved["max"],
                         displacement_median=moved["median"], diagonal=diag, decoded=verts, exact=exact, free=free,
                         exact_share=share)
+
+    def _resolve_meshes(self, v_user: torch.Tensor, target, settings, margins: list[float], batch: int, anchor: str,
+                        verify: bool, repair: bool | None, band) -> Resolved:
+        """:meth:`resolve` of meshes (B, V, 3) float64: :func:`~neuralcol.handler.resolve.resolve_meshes`, the free
+        inputs returned untouched (exact PD first; no encoder, handler or repair for them)."""
+        from neuralcol.handler.resolve import UNTOUCHED, displacement_stats, resolve_meshes
+
+        pd_in = self._pd(v_user)
+        rep = self.repair_settings(repair) if verify else None
+        if rep is not None:
+            self.label_pool()  # the repair asks the run's labeler in this process
+        all_free = len(pd_in) > 0 and bool((pd_in <= 0).all())
+        net = None if all_free else self.on_codes  # (the detector over codes costs ~10 ms to build on SCAPE)
+        res = resolve_meshes(net, self.space, v_user, self._pd, settings, margins, batch, objective=target,
+                             anchor=anchor, pd_input=pd_in, repair=rep,
+                             labeler=self._exact if rep is not None else None, certify=band, skip_freed=True)
+        untouched = res.stage == UNTOUCHED
+        used_margins = np.array([settings.margin, *margins, np.nan])
+        margin = np.where(untouched, np.nan, used_margins[np.where(untouched, 0, res.stage)])
+        encoded = np.flatnonzero(torch.isfinite(res.codes_before).all(-1).numpy())
+        pd_before = np.full(len(v_user), np.nan)
+        if len(encoded):
+            pd_before[encoded] = self._pd(self.decode(res.codes_before[torch.as_tensor(encoded)]))
+        moved = displacement_stats(v_user.numpy(), res.vertices, self.diagonal)
+        return Resolved(vertices=torch.as_tensor(res.vertices, dtype=torch.float64, device=self.device),
+                        codes=res.codes.to(self.device), codes_before=res.codes_before.to(self.device),
+                        pd_input=res.pd_input, pd_before=pd_before, pd_after=res.pd_after, margin=margin,
+                        displacement_mean=moved["mean"], displacement_max=moved["max"],
+                        displacement_median=moved["median"], diagonal=self.diagonal,
+                        decoded=torch.as_tensor(res.decoded, dtype=torch.float32, device=self.device),
+                        repaired=res.repaired, exact=res.exact, free=res.free, exact_share=res.exact_share,
+                        shrink=res.shrink, cap=res.cap, untouched=untouched)

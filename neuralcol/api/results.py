@@ -61,8 +61,8 @@ class Resolved(NamedTuple):
     float64: exact PD of the input meshes (NaN for code inputs). pd_before (N,): exact PD of the decoded input
     codes (the autoencoder's round trip). pd_after (N,): exact PD of the returned ``vertices`` (NaN: the
     handler or the labeler failed). margin (N,): the detector-logit margin of the kept result (NaN where the
-    contact repair's mesh was kept). repaired (N,) bool: the contact repair (``handler.repair``, mesh inputs
-    with ``verify``) produced the returned mesh.
+    contact repair's mesh was kept, or the input came back ``untouched``). repaired (N,) bool: the contact repair
+    (``handler.repair``, mesh inputs with ``verify``) produced the returned mesh.
     displacement_mean, displacement_max, displacement_median (N,): how far the returned vertices lie from the
     input's (code inputs: from the decoded input code), in mesh units; divide by ``diagonal`` (the rest mesh's
     bounding-box diagonal) for a fraction. decoded (N, V, 3) float32: the handled codes decoded (the latent
@@ -77,6 +77,9 @@ class Resolved(NamedTuple):
     repair or for code inputs.
     cap (N,) or None: the cap on the returned mesh's vertex moves, a fraction of the largest move before it
     (``handler.repair.cap_steps``; NaN where not tried, 1 where not clipped); None as ``shrink``.
+    untouched (N,) bool or None (code inputs): the input mesh was free by the exact label and came back as given,
+    bit for bit (``pd_after`` = ``pd_input``, displacements 0, ``margin`` NaN; it skipped the encoder, handler and
+    repair, so its ``codes``, ``codes_before``, ``decoded`` and ``pd_before`` are NaN).
     """
 
     vertices: torch.Tensor
@@ -97,4 +100,5 @@ class Resolved(NamedTuple):
     exact_share: float | None = None
     shrink: np.ndarray | None = None
     cap: np.ndarray | None = None
+    untouched: np.ndarray | None = None
 

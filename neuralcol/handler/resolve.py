@@ -21,6 +21,7 @@ from neuralcol.handler.objectives import LatentObjective
 from neuralcol.utils.config import as_dict
 
 ANCHORS = ("median", "none")
+UNTOUCHED = -1  # MeshResolution.stage of a free input returned as given (resolve_meshes with keep_free)
 
 
 def alm_settings(cfg) -> ALMSettings:
@@ -209,9 +210,11 @@ class MeshResolution(NamedTuple):
     handled codes decoded (the latent result). codes, codes_before (N, D) float32. pd_input (N,): exact PD of
     the inputs. pd_after_detector (N,): exact PD of the returned mesh after the detector-guided handling alone;
     pd_after (N,): after exact verification and the contact repair (equal to the former without either).
-    stage (N,) int: which margin's result was kept (0: the first; ``len(margins) + 1``: the contact repair's).
-    feasible (N,) bool: the detector calls the first result free. pd_after_escalation (N,): after the margins,
-    before the repair. repaired (N,) bool: the contact repair's mesh was kept.
+    stage (N,) int: which margin's result was kept (0: the first; ``len(margins) + 1``: the contact repair's;
+    :data:`UNTOUCHED`: a free input returned as given, every PD then the input's).
+    feasible (N,) bool: the detector calls the first result free (False where the detector was not asked).
+    pd_after_escalation (N,): after the margins, before the repair. repaired (N,) bool: the contact repair's mesh was
+    kept.
     With ``certify`` (else None): exact (N,) bool: the verdict on the returned mesh is the exact labeler's (the
     PDs are NaN where the detector was trusted instead); free (N,) bool: the cascade calls it collision-free;
     exact_share: exact labels per verification decision.
@@ -336,11 +339,12 @@ def edge_strain(v_in: np.ndarray, v_out: np.ndarray, faces: np.ndarray) -> np.nd
     return np.abs(after - before).max(-1) / np.maximum(before.mean(-1), 1e-300)
 
 
-def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
+def resolve_meshes(net: torch.nn.Module | None, space, v_user: torch.Tensor,
                    label: Callable[[np.ndarray], np.ndarray], settings: ALMSettings, margins=(),
                    batch_size: int = 256, objective=None, anchor: str = "median",
                    z_user: torch.Tensor | None = None, pd_input: np.ndarray | None = None, repair=None, labeler=None,
-                   progress: bool = False, certify=None, skip_freed: bool = False) -> MeshResolution:
+                   progress: bool = False, certify=None, skip_freed: bool = False,
+                   keep_free: bool = True) -> MeshResolution:
     """Resolve self-collisions of the user's meshes and return the user's meshes, corrected (issue 27).
 
     The inputs are encoded; the augmented-Lagrangian handler moves each code to the nearest one the detector
@@ -349,8 +353,14 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
     ``margins``, the inputs whose returned mesh still self-penetrates are handled again with each larger margin
     (:func:`verified_escalation`, on the returned meshes' exact PD).
 
+    Each input is labeled exactly first. With ``keep_free`` (the default) an input the exact labeler calls free
+    (PD <= 0) comes back untouched: its own float64 values, ``stage`` :data:`UNTOUCHED`, PD after = PD of the input,
+    and it skips the encoder, the handler and the repair (codes, ``decoded`` NaN unless ``z_user`` is given;
+    :func:`_keep_free_inputs`). When every input is free, the cost is one exact label per input.
+
     Args:
-        net: the detector. space: the latent space.
+        net: the detector (None only where every input is free and ``keep_free``: it is then never asked).
+        space: the latent space.
         v_user: (N, V, 3) the input meshes.
         label: meshes (n, V, 3) float64 -> exact PD (n,) (NaN where the labeler failed).
         settings: ALM settings (``settings.margin`` is the first margin). margins: larger verification margins.
@@ -370,6 +380,8 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
             ``resolve`` does for a user: most of its time is the handler's; their ``pd_after_detector`` and
             ``pd_after_escalation`` are NaN, their codes the inputs', ``decoded`` NaN). False (the evaluations):
             every input also takes the neural path, so both are measured.
+        keep_free: free inputs (exact PD <= 0) come back untouched and skip the encoder, handler and repair.
+            False: every input takes the whole path (a free input is moved by whatever correction it implies).
         certify: a :class:`~neuralcol.metrics.cascade.Band` or None: verify through the certified cascade
             (:class:`CertifiedLabel`): a handled result is labeled exactly only where the latent detector's logit
             on its code lies in the band; below it the detector is trusted (free, kept), at or above it the result
@@ -378,6 +390,13 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
     if repair is not None and labeler is None:
         raise ValueError("resolve_meshes: repair needs the exact labeler (labeler=...)")
     v_user = torch.as_tensor(v_user).detach().to("cpu", torch.float64)
+    n = len(v_user)
+    pd_in = label(v_user.numpy()) if pd_input is None else np.asarray(pd_input, np.float64)
+    if net is None and not (keep_free and n and (pd_in <= 0).all()):
+        raise ValueError("resolve_meshes: net=None, but some inputs need the handler (colliding, or keep_free=False)")
+    if keep_free and (pd_in <= 0).any():
+        return _keep_free_inputs(net, space, v_user, label, settings, margins, batch_size, objective, anchor, z_user,
+                                 pd_in, repair, labeler, progress, certify, skip_freed)
     z_user = (space.encode(v_user) if z_user is None else z_user).detach().float().cpu()
     dev = space.box_lo.device
 
@@ -405,8 +424,6 @@ def resolve_meshes(net: torch.nn.Module, space, v_user: torch.Tensor,
     def label_codes(z: torch.Tensor, rows: np.ndarray) -> np.ndarray:
         return label(returned(z, rows).numpy())
 
-    n = len(v_user)
-    pd_in = label(v_user.numpy()) if pd_input is None else np.asarray(pd_input, np.float64)
     if skip_freed and repair is not None and repair.first and (~(pd_in <= 0)).any():
         return _repair_first_then_rest(net, space, v_user, label, settings, margins, batch_size, objective, anchor,
                                        z_user, pd_in, repair, labeler, progress, certify)
@@ -506,6 +523,52 @@ def _repaired(space, meshes: np.ndarray, label, repair, labeler, progress: bool)
     return fixed, label(fixed)
 
 
+def _keep_free_inputs(net, space, v_user: torch.Tensor, label, settings, margins, batch_size, objective, anchor,
+                      z_user, pd_in: np.ndarray, repair, labeler, progress, certify, skip_freed) -> MeshResolution:
+    """:func:`resolve_meshes` with ``keep_free``: the free inputs (exact PD <= 0) returned as given, the colliding
+    ones resolved by the whole path.
+
+    A free row: ``vertices`` the input's float64 values, ``decoded`` NaN, ``codes`` and ``codes_before`` the given
+    ``z_user`` (NaN when none was given: the encoder is not run for it), every PD the input's, ``stage``
+    :data:`UNTOUCHED`, ``feasible`` and ``repaired`` False, ``shrink``/``cap`` NaN; with ``certify`` its verdict is
+    exact and free, and ``exact_share`` is the colliding rows' (1.0 when every input is free: the only verdicts are
+    the inputs' exact labels)."""
+    n = len(v_user)
+    free = pd_in <= 0
+    rows = np.flatnonzero(~free)
+    z_in = torch.full((n, space.dim), float("nan")) if z_user is None else z_user.detach().float().cpu().clone()
+    out = v_user.numpy().copy()
+    decoded = np.full(out.shape, np.nan)
+    pd_det, pd_v, pd_esc = pd_in.copy(), pd_in.copy(), pd_in.copy()
+    stage = np.full(n, UNTOUCHED, np.int64)
+    feasible, repaired = np.zeros(n, bool), np.zeros(n, bool)
+    shrink = None if repair is None else np.full(n, np.nan)
+    cap = None if repair is None else np.full(n, np.nan)
+    exact = None if certify is None else free.copy()
+    free_c = None if certify is None else free.copy()
+    share = None if certify is None else 1.0
+    codes = z_in.clone()
+    if len(rows):
+        r = torch.as_tensor(rows)
+
+        def sub_objective(z: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+            return objective(z, r.to(idx.device)[idx])
+
+        sub = resolve_meshes(net, space, v_user[r], label, settings, margins, batch_size,
+                             None if objective is None else sub_objective, anchor,
+                             None if z_user is None else z_in[r], pd_in[rows], repair, labeler, progress, certify,
+                             skip_freed, keep_free=False)
+        out[rows], decoded[rows], codes[r], z_in[r] = sub.vertices, sub.decoded, sub.codes.float(), sub.codes_before
+        pd_det[rows], pd_v[rows], pd_esc[rows] = sub.pd_after_detector, sub.pd_after, sub.pd_after_escalation
+        stage[rows], feasible[rows], repaired[rows] = sub.stage, sub.feasible, sub.repaired
+        if repair is not None:
+            shrink[rows], cap[rows] = sub.shrink, sub.cap
+        if certify is not None:
+            exact[rows], free_c[rows], share = sub.exact, sub.free, sub.exact_share
+    return MeshResolution(out, decoded, codes, z_in, pd_in, pd_det, pd_v, stage, feasible, pd_esc, repaired, exact,
+                          free_c, share, shrink, cap)
+
+
 def _repair_first_then_rest(net, space, v_user, label, settings, margins, batch_size, objective, anchor, z_user,
                             pd_in, repair, labeler, progress, certify) -> MeshResolution:
     """:func:`resolve_meshes` with ``skip_freed``: the colliding inputs repaired first; those it frees are done,
@@ -521,7 +584,7 @@ def _repair_first_then_rest(net, space, v_user, label, settings, margins, batch_
     if len(rows):
         sub = resolve_meshes(net, space, v_user[torch.as_tensor(rows)], label, settings, margins, batch_size,
                              None if objective is None else sub_objective, anchor, z_user[torch.as_tensor(rows)],
-                             pd_in[rows], replace(repair, first=False), labeler, progress, certify)
+                             pd_in[rows], replace(repair, first=False), labeler, progress, certify, keep_free=False)
     nan = np.full(n, np.nan)
     out = np.full(tuple(v_user.shape), np.nan)
     decoded = np.full(tuple(v_user.shape), np.nan)

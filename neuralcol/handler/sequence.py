@@ -13,6 +13,12 @@ frame t is ``c_t = out_t - in_t`` (V, 3), and the motion is resolved in two pass
   change is at most ``rate`` per vertex, kept where that frame stays free; from the last frame to the first, so
   the ramps chain.
 
+Free frames: a frame whose warm start is free and that carries no correction (none before it, or the last one
+decayed to exactly 0) is never passed to ``resolve_one`` and comes back bit for bit, so a motion whose frames are all
+free comes back unchanged. The free frames within a ramp (the frames after a collision while its correction decays,
+and the frames before one while it ramps in, about ``|correction| / rate`` of each) are moved by design: the
+correction reaches them gradually so that the motion stays smooth instead of popping at the collision's onset or end.
+
 ``rate`` is a length: by default the largest frame-to-frame vertex move of the input itself (the issue's
 yardstick: the correction's largest change against the input's), times ``handler.sequence.rate``. Frames the
 single-mesh resolve cannot free, and jumps the ramp cannot take without a collision, are reported, not hidden.
@@ -59,10 +65,12 @@ def frame_jumps(frames: np.ndarray) -> np.ndarray:
 
 
 def move_toward(start: np.ndarray, goal: np.ndarray, rate: float) -> np.ndarray:
-    """``start`` (V, 3) moved towards ``goal`` by at most ``rate`` per vertex (all the way where closer)."""
+    """``start`` (V, 3) moved towards ``goal`` by at most ``rate`` per vertex; where the goal is within ``rate`` the
+    vertex takes the goal's own values (so a correction decayed towards zero becomes exactly 0, not a round-off
+    residue, and the frame it is added to comes back bit for bit)."""
     d = goal - start
     n = np.linalg.norm(d, axis=1, keepdims=True)
-    return start + d * np.minimum(1.0, rate / np.maximum(n, 1e-300))
+    return np.where(n <= rate, goal, start + d * np.minimum(1.0, rate / np.maximum(n, 1e-300)))
 
 
 def resolve_sequence(frames: np.ndarray, resolve_one: Callable[[np.ndarray], np.ndarray],
