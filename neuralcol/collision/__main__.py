@@ -38,7 +38,8 @@ EPILOG = (
     "Meshes are grouped by topology (identical face lists). Each group is labelled against a rest mesh, "
     "which sets the clearance cap and the rest distances of the clearance (and so the negative PD values): "
     "the --rest mesh if it has the group's topology, otherwise the group's first mesh in the order given. "
-    "The verdict and the pair count do not depend on the rest mesh. A folder PATH means all its {'/'.join(MESH_SUFFIXES)} files in natural order (2.obj "
+    "The verdict and the pair count do not depend on the rest mesh. "
+    f"A folder PATH means all its {'/'.join(MESH_SUFFIXES)} files in natural order (2.obj "
     "before 10.obj). Exit status: 0 if every mesh was read and labelled, 2 if some PATH or file could not be "
     "(reported on stderr, one line each; the other meshes are still labelled)."
 )

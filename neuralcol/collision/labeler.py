@@ -475,5 +475,5 @@ class ExactLabeler(MeshByMesh):
                                      self.adj_idx, self.adj_eid, self.orient, rec_key, rec_int, n_rec)
         return far_pass(v, self.faces, lo, hi, max(self.cell, r + margin), lo0, hi0, lo_cap, hi_cap, active,
                         self._rest_centroids, near2, self._near_ptr, self._near_b, self._near_rest, *axes, self.ell,
-                        self.tau, gerr, self.cap, clear, floor, self.partition, self.adj_ptr, self.adj_idx, self.adj_eid,
-                        self.orient, rec_key, rec_int, n_rec)
+                        self.tau, gerr, self.cap, clear, floor, self.partition, self.adj_ptr, self.adj_idx,
+                        self.adj_eid, self.orient, rec_key, rec_int, n_rec)

@@ -236,7 +236,6 @@ class WarpLabeler:
                 break
             pair_cap = count  # the list overflowed: run again with room for every counted pair
         clear_h = clear.numpy()
-        floor_h = floor.numpy()
         n_pairs_h = n_pairs.numpy().astype(np.int64)
         pd_sub = -np.minimum(self.cap, clear_h)
         hit = np.flatnonzero(n_pairs_h > 0)
