@@ -4,15 +4,22 @@ Definitions (units: those of the vertex coordinates; ``ell`` = mean edge length 
 diagonal of the rest mesh the labeler is built with):
 
 * **Adjacency.** Two triangles are adjacent iff they share an edge; adjacent pairs never count. Pairs that
-  share one vertex count when they overlap anywhere other than that vertex (a local fold); pairs sharing
-  no vertex count when they overlap at all.
+  share one vertex count when they meet anywhere other than that vertex (a local fold); pairs sharing
+  no vertex count when their interiors meet at all.
+* **Intersecting pair** (exact). The two triangles' relative interiors intersect: they cross, or they lie in one
+  plane and overlap with positive area; touching (a corner on the other triangle, an edge along it, coplanar
+  triangles meeting along an edge) does not count, and a triangle with collinear corners has no interior.
+  Decided with exact orientation predicates on the float coordinates given
+  (:mod:`~neuralcol.collision.kernels.predicates`), so at every scale.
 * **Pair depth.** ``d(s, t)`` = translational penetration depth of the two triangles, by the separating-axis
   theorem over the 17 face normals of their Minkowski difference (2 normals, 9 edge-edge, 6 in-plane edge
-  normals). It is > 0 iff the triangles' interiors overlap, 0 when they merely touch (a shared vertex,
-  an edge lying on a face), continuous in the vertices, and exactly coplanar triangles (e.g. neighbours
-  from midpoint subdivision) get ``d <= 0``.
-* **Verdict.** The mesh self-collides iff some counted pair has ``d > tau`` with ``tau = touch_tol * ell``
-  (default ``touch_tol = 1e-6``): touching within ``tau`` does not count.
+  normals). It is > 0 when the triangles cross, 0 when they merely touch (a shared vertex, an edge lying on
+  a face), continuous in the vertices. A coplanar overlap (17-axis depth 0) takes its in-plane depth, over
+  the 6 in-plane edge normals alone.
+* **Verdict.** The mesh self-collides iff some non-adjacent pair intersects (with ``touch_tol > 0``, and has
+  ``d > tau``, ``tau = touch_tol * ell``: crossings that shallow count as touching; default ``touch_tol = 0``,
+  exact). A counted pair's penetration is ``max(d - tau, 2**-126)``, so ``PD > 0`` iff the mesh collides even
+  for a crossing below round-off.
 * **Penetrating vertices.** Every edge of a counted pair that properly crosses the other triangle is a
   crossing edge; its endpoint behind the pierced triangle (against the outward normal) is a seed. On a
   closed mesh the penetrating region of a seed is everything reachable from it over edges that do not cross
@@ -33,7 +40,7 @@ diagonal of the rest mesh the labeler is built with):
   while separate parts (two fingers, an arm and the torso) count with their real distance. Which formula
   a pair uses is fixed by the rest mesh, so ``c`` is continuous in the vertices.
 * **PD_i and PD.** Given a vertex partition into K parts (one part if none is given):
-  ``PD_i = max(depth of the penetrating vertices of part i, d(s, t) - tau of the counted pairs touching
+  ``PD_i = max(depth of the penetrating vertices of part i, penetration of the counted pairs touching
   part i)`` if that is > 0, otherwise ``PD_i = -min(cap, min c(s, t) over pairs touching part i)``.
   ``PD = max_i PD_i``. So ``PD > 0`` iff the mesh self-collides; PD is the deepest penetration when it
   does and minus the (capped) clearance when it does not; both sides go to 0 at the contact, and a part
@@ -225,7 +232,8 @@ class ExactLabeler(MeshByMesh):
         rest_vertices: (V, 3) float rest mesh: sets ``ell``, ``diag`` and the rest distances of the
             clearance; it should be free of self-intersections.
         partition: (V,) int part of each vertex in [0, K) for PD_i; None means one part.
-        touch_tol: ``tau = touch_tol * ell``; overlaps up to tau count as touching.
+        touch_tol: 0 (default): exact verdicts; > 0: crossings no deeper than ``tau = touch_tol * ell`` count as
+            touching.
         clearance_cap: ``cap = clearance_cap * diag``; clearances are capped there.
         boundary_eps: ``eps = boundary_eps * diag`` for the D_p / D_b split (paper eq. 1).
         cell_factor: grid cell size of the broadphase in units of the mean triangle box size.
