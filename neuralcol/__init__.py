@@ -23,6 +23,9 @@ _EXPORTS = {
     "pretrained": "neuralcol.api",
     "pack_run": "neuralcol.api",
     "TrainedRun": "neuralcol.api",
+    "check": "neuralcol.api.anymesh",
+    "resolve": "neuralcol.api.anymesh",
+    "resolve_sequence": "neuralcol.api.anymesh",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -24,6 +24,7 @@ LAYERS = [
     {"stages"},
     {"pipeline"},
     {"api", "__init__"},
+    {"cli"},
 ]
 LAYER = {pkg: i for i, group in enumerate(LAYERS) for pkg in group}
 

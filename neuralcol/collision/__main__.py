@@ -13,13 +13,14 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NamedTuple, TextIO
+from typing import TextIO
 
 import numpy as np
 
 from neuralcol.collision.labeler import ExactLabeler, Label
 from neuralcol.collision.pool import LabelPool
-from neuralcol.geometry.mesh_io import MESH_SUFFIXES, natural_key, read_mesh
+from neuralcol.geometry.mesh_files import MeshEntry, expand_paths, failure_reason, read_entry, topology_key
+from neuralcol.geometry.mesh_io import MESH_SUFFIXES
 
 PROG = "python -m neuralcol.collision"
 EXIT_OK, EXIT_UNREADABLE = 0, 2
@@ -45,15 +46,6 @@ EPILOG = (
 )
 
 
-class MeshEntry(NamedTuple):
-    """One mesh file to label: ``name`` as printed (the path as given, or joined to its folder); ``error`` is
-    set for a PATH that names no mesh file (reported in its place)."""
-
-    name: str
-    path: Path
-    error: str | None = None
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the command line labeler."""
     parser = argparse.ArgumentParser(prog=PROG, description=DESCRIPTION, epilog=EPILOG)
@@ -66,46 +58,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--workers", type=int, default=0, metavar="N",
                         help="worker processes for labelling (0 or 1: in this process; default 0)")
     return parser
-
-
-def expand_paths(paths: Sequence[str]) -> list[MeshEntry]:
-    """Mesh files named by the PATH arguments, in the order given (folders in natural order).
-
-    Returns:
-        The entries; a missing path or a folder without mesh files gives one entry with ``error`` set.
-    """
-    entries = []
-    for arg in paths:
-        path = Path(arg)
-        if path.is_dir():
-            names = sorted((p.name for p in path.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES),
-                           key=natural_key)
-            if not names:
-                entries.append(MeshEntry(arg, path, f"folder holds no mesh files ({', '.join(MESH_SUFFIXES)})"))
-            entries += [MeshEntry(os.path.join(arg, n), path / n) for n in names]
-        elif path.exists():
-            entries.append(MeshEntry(arg, path))
-        else:
-            entries.append(MeshEntry(arg, path, "no such file or folder; check the path"))
-    return entries
-
-
-def _reason(name: str, path: Path, exc: BaseException) -> str:
-    """One-line reason of a read failure, without the path prefix that MeshFileError messages carry."""
-    msg = str(exc)
-    for prefix in (f"{path}: ", f"{name}: "):
-        if msg.startswith(prefix):
-            msg = msg[len(prefix):]
-            break
-    return " ".join(msg.split()) or type(exc).__name__
-
-
-def read_entry(entry: MeshEntry) -> tuple[np.ndarray, np.ndarray]:
-    """Read one mesh and check that its vertices are finite: vertices (V, 3) float64, faces (F, 3) int64."""
-    vertices, faces = read_mesh(entry.path)
-    if not np.isfinite(vertices).all():
-        raise ValueError("vertices contain NaN or inf; cannot label")
-    return vertices, faces
 
 
 def label_group(labeler: ExactLabeler, vertices: np.ndarray, workers: int) -> list[Label | BaseException]:
@@ -126,11 +78,6 @@ def format_line(name: str, label: Label, as_json: bool, name_width: int = 0, pai
     collides = "true" if label.collides else "false"
     return (f"{name:<{name_width}}  collides={collides:<5}  pairs={label.n_pairs:<{pairs_width}d}  "
             f"pd={label.pd:.6g}")
-
-
-def topology_key(vertices: np.ndarray, faces: np.ndarray) -> tuple[int, tuple[int, ...], bytes]:
-    """Hashable topology of a mesh with vertices (V, 3) and faces (F, 3): meshes of one labeler share it."""
-    return len(vertices), faces.shape, np.ascontiguousarray(faces, dtype=np.int64).tobytes()
 
 
 def main(argv: Sequence[str] | None = None, out: TextIO | None = None, err: TextIO | None = None) -> int:
@@ -156,7 +103,8 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None, err: Text
         try:
             rest = read_entry(MeshEntry(args.rest, Path(args.rest)))
         except Exception as exc:
-            print(f"{args.rest}: cannot read the --rest mesh: {_reason(args.rest, Path(args.rest), exc)}", file=err)
+            reason = failure_reason(args.rest, Path(args.rest), exc)
+            print(f"{args.rest}: cannot read the --rest mesh: {reason}", file=err)
             return EXIT_UNREADABLE
 
     entries, ok = expand_paths(args.paths), True
@@ -170,7 +118,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None, err: Text
         try:
             meshes[i] = read_entry(entry)
         except Exception as exc:  # MeshFileError or anything trimesh raises
-            print(f"{entry.name}: cannot read: {_reason(entry.name, entry.path, exc)}", file=err)
+            print(f"{entry.name}: cannot read: {failure_reason(entry.name, entry.path, exc)}", file=err)
             ok = False
             continue
         groups.setdefault(topology_key(*meshes[i]), []).append(i)
@@ -191,7 +139,8 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None, err: Text
             results = [exc] * len(idx)
         for i, res in zip(idx, results):
             if isinstance(res, BaseException):
-                print(f"{entries[i].name}: cannot label: {_reason(entries[i].name, entries[i].path, res)}", file=err)
+                reason = failure_reason(entries[i].name, entries[i].path, res)
+                print(f"{entries[i].name}: cannot label: {reason}", file=err)
                 ok = False
             else:
                 labels[i] = res

@@ -1,0 +1,203 @@
+"""Checking and resolving any triangle mesh, with or without a trained run: ``neuralcol.check``,
+``neuralcol.resolve`` and ``neuralcol.resolve_sequence``.
+
+Without a run these need only the faces: the exact labeler (:mod:`neuralcol.collision.labeler`) gives the verdict,
+and the exact repairs (:mod:`neuralcol.handler.contact_repair`: the contact push, the untangle where the push fails,
+then the displacement cap) move a colliding mesh until the exact labeler calls it free, as little as they can. With
+a run trained on the mesh's topology, ``resolve`` is :meth:`~neuralcol.api.TrainedRun.resolve` (the learned handler,
+then the same repairs). A free input comes back untouched either way, at the cost of one exact check.
+
+    import neuralcol
+    checked = neuralcol.check(vertices, faces)            # Checked: collides (B,), pairs (B,), pd (B,)
+    out = neuralcol.resolve(vertices, faces)              # Resolved: vertices, pd_input, pd_after, moves, ...
+    motion = neuralcol.resolve_sequence(frames, faces)    # SequenceResolution: every frame freed, smooth in time
+
+Symbols: B meshes, T frames, V vertices, F faces.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from neuralcol.errors import UserInputError
+
+
+class Checked(NamedTuple):
+    """:func:`check` of B meshes: collides (B,) bool (the exact verdict), pairs (B,) int64 (intersecting triangle
+    pairs), pd (B,) float64 (signed penetration depth in mesh units: > 0 iff the mesh collides; docs/labels.md)."""
+
+    collides: np.ndarray
+    pairs: np.ndarray
+    pd: np.ndarray
+
+
+def as_meshes(vertices, faces, name: str = "vertices") -> tuple[np.ndarray, np.ndarray]:
+    """Meshes (B, V, 3) or one (V, 3) as float64 (B, V, 3), and faces (F, 3) int64; UserInputError when the shapes,
+    the face indices or the coordinates are wrong."""
+    v = np.asarray(vertices.detach().cpu() if hasattr(vertices, "detach") else vertices, dtype=np.float64)
+    if v.ndim == 2:
+        v = v[None]
+    if v.ndim != 3 or v.shape[-1] != 3 or v.shape[1] < 3:
+        raise UserInputError(f"{name} have shape {v.shape}; give one mesh (V, 3) or meshes (B, V, 3)")
+    f = np.asarray(faces.detach().cpu() if hasattr(faces, "detach") else faces)
+    if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+        raise UserInputError(f"faces have shape {f.shape}; give triangles (F, 3) of vertex indices")
+    if not np.issubdtype(f.dtype, np.integer):
+        raise UserInputError(f"faces have dtype {f.dtype}; give integer vertex indices")
+    f = f.astype(np.int64)
+    if f.min() < 0 or f.max() >= v.shape[1]:
+        raise UserInputError(f"faces index vertices {f.min()}..{f.max()}, but the meshes have {v.shape[1]} vertices "
+                             f"(0..{v.shape[1] - 1}); faces and vertices do not belong together")
+    if not np.isfinite(v).all():
+        bad = np.flatnonzero(~np.isfinite(v).all(axis=(1, 2)))
+        raise UserInputError(f"{name}: mesh(es) {bad[:5].tolist()} hold NaN or inf coordinates; cannot check them")
+    return v, f
+
+
+def labeler_for(faces: np.ndarray, rest: np.ndarray, settings: dict | None = None):
+    """The exact labeler of a topology, built on ``rest`` (V, 3): the mesh that sets the clearance scale (its
+    bounding-box diagonal) and the near-pair table of the free PD (the verdict does not depend on it).
+    ``settings``: the labeler's keyword arguments (``touch_tol``, ``clearance_cap``, ``boundary_eps``, ...)."""
+    from neuralcol.collision.labeler import ExactLabeler
+
+    return ExactLabeler(faces, rest, **(settings or {}))
+
+
+def check(vertices, faces, rest=None) -> Checked:
+    """The exact self-collision verdict of meshes of one topology.
+
+    Args:
+        vertices: (B, V, 3) meshes or one (V, 3), numpy or torch.
+        faces: (F, 3) triangles.
+        rest: (V, 3) the mesh the labeler measures clearances against (None: the first mesh).
+
+    Returns:
+        :class:`Checked`.
+    """
+    v, f = as_meshes(vertices, faces)
+    lab = labeler_for(f, v[0] if rest is None else as_meshes(rest, f, "rest")[0][0])
+    labels = lab.label_batch(v)
+    return Checked(labels.collides, labels.n_pairs, labels.pd)
+
+
+def _check_run_topology(run, faces: np.ndarray, n_vertices: int) -> None:
+    """UserInputError unless ``run`` was trained on meshes of these faces."""
+    run_faces = np.asarray(run.faces, np.int64)
+    if run.n_vertices != n_vertices or run_faces.shape != faces.shape or not np.array_equal(run_faces, faces):
+        raise UserInputError(
+            f"run {run.run_dir}: trained on meshes of {run.n_vertices} vertices and {len(run_faces)} faces; these "
+            f"have {n_vertices} vertices and {len(faces)} faces"
+            f"{' (other faces)' if run_faces.shape == faces.shape else ''}"
+            "; resolve them without a run (run=None, the exact repairs) or train a run on their topology")
+
+
+def resolve(vertices, faces, run=None, rest=None, repair=None, progress: bool = False):
+    """Resolve self-collisions of meshes of one topology: each colliding mesh comes back free by the exact label,
+    moved as little as the repairs can; each free mesh comes back untouched (bit for bit).
+
+    Args:
+        vertices: (B, V, 3) meshes or one (V, 3), numpy or torch.
+        faces: (F, 3) triangles.
+        run: None (the exact repairs alone: contact push, untangle, displacement cap) or a
+            :class:`~neuralcol.api.TrainedRun` of this topology (its learned handler, then the same repairs).
+        rest: (V, 3) the mesh that sets the scale of the repairs (their separation and largest step are fractions
+            of its bounding-box diagonal); None: the first mesh. Without a run only.
+        repair: :class:`~neuralcol.handler.contact_repair.RepairSettings` (None: the defaults, which are
+            ``handler.repair`` of ``conf/handler/default.yaml``). Without a run only.
+        progress: a progress bar over the colliding meshes.
+
+    Returns:
+        :class:`~neuralcol.api.Resolved`. Without a run: ``codes``, ``codes_before`` are (B, 0), ``decoded`` and
+        ``pd_before`` NaN (no latent space), ``margin`` NaN, ``repaired`` True where the repairs moved the mesh,
+        ``cap`` the displacement cap kept, ``untouched`` the free inputs.
+    """
+    v, f = as_meshes(vertices, faces)
+    if run is not None:
+        _check_run_topology(run, f, v.shape[1])
+        return run.resolve(v)
+    base = v[0] if rest is None else as_meshes(rest, f, "rest")[0][0]
+    return repair_batch(labeler_for(f, base), base, v, f, repair, progress)
+
+
+def repair_batch(lab, base: np.ndarray, v: np.ndarray, f: np.ndarray, repair, progress: bool):
+    """:func:`resolve` without a run of meshes (B, V, 3) with faces (F, 3), given the exact labeler ``lab`` of their
+    topology built on ``base`` (V, 3) (so a caller resolving many batches builds it once); ``repair`` a
+    RepairSettings or None (the defaults)."""
+    from neuralcol.api.results import Resolved
+    from neuralcol.handler.contact_repair import RepairSettings, outward_sign, repair_meshes
+    from neuralcol.handler.resolve import cap_displacements, displacement_stats
+
+    settings = RepairSettings() if repair is None else repair
+    pd_in = lab.label_batch(v).pd
+    out, pd_out = v.copy(), pd_in.copy()
+    rows = np.flatnonzero(pd_in > 0)
+    repaired, cap = np.zeros(len(v), bool), np.full(len(v), np.nan)
+    if len(rows):
+        fixed, _, _ = repair_meshes(v[rows], f, lab, settings, float(lab.eps), float(lab.diag), outward_sign(f, base),
+                                    progress=progress)
+        pd_fix = lab.label_batch(fixed).pd
+        better = pd_fix < pd_in[rows]  # (a repair that makes things worse is not kept)
+        keep = rows[better]
+        out[keep], pd_out[keep], repaired[keep] = fixed[better], pd_fix[better], True
+        freed = keep[pd_out[keep] <= 0]
+        if settings.cap_steps and len(freed):
+            kept, pd_c, cap[freed] = cap_displacements(
+                v[freed], out[freed], lambda m: lab.label_batch(m).pd, settings.cap_steps,
+                lambda m: np.array([lab.verdict(x) for x in m], bool))
+            clipped = cap[freed] < 1
+            out[freed], pd_out[freed[clipped]] = kept, pd_c[clipped]
+    moved = displacement_stats(v, out, float(lab.diag))
+    n = len(v)
+    nan = np.full(n, np.nan)
+    return Resolved(vertices=torch.as_tensor(out), codes=torch.zeros(n, 0), codes_before=torch.zeros(n, 0),
+                    pd_input=pd_in, pd_before=nan, pd_after=pd_out, margin=nan.copy(),
+                    displacement_mean=moved["mean"], displacement_max=moved["max"],
+                    displacement_median=moved["median"], diagonal=float(lab.diag),
+                    decoded=torch.full(v.shape, float("nan"), dtype=torch.float32), repaired=repaired, cap=cap,
+                    untouched=pd_in <= 0)
+
+
+def resolve_sequence(frames, faces, run=None, rate: float = 1.0, rest=None, repair=None, progress: bool = False):
+    """Resolve a motion: every frame freed, the corrections varying smoothly in time
+    (:mod:`neuralcol.handler.sequence`); frames that are free and away from any correction come back untouched.
+
+    Args:
+        frames: (T, V, 3) the frames in order (T >= 2).
+        faces: (F, 3) triangles.
+        run: None (the exact repairs) or a :class:`~neuralcol.api.TrainedRun` of this topology.
+        rate: the largest change of the correction between frames, as a multiple of the input's own largest
+            frame-to-frame vertex move.
+        rest, repair: as :func:`resolve` (without a run; ``rest`` None: the first frame).
+        progress: a progress bar over the frames.
+
+    Returns:
+        :class:`~neuralcol.handler.sequence.SequenceResolution`.
+    """
+    from neuralcol.handler.sequence import frame_jumps
+    from neuralcol.handler.sequence import resolve_sequence as sequence
+    from neuralcol.utils.progress import progress_bar
+
+    v, f = as_meshes(frames, faces, "frames")
+    if len(v) < 2:
+        raise UserInputError(f"frames: {len(v)} frame; a motion needs at least 2 (use resolve for one mesh)")
+    if not rate > 0:
+        raise UserInputError(f"rate={rate}: must be > 0 (a multiple of the input's largest frame-to-frame move)")
+    if run is not None:
+        _check_run_topology(run, f, v.shape[1])
+        return run.resolve_sequence(v, rate=rate, progress=progress)
+    base = v[0] if rest is None else as_meshes(rest, f, "rest")[0][0]
+    lab = labeler_for(f, base)
+    top = float(frame_jumps(v).max())
+    step = rate * (top if top > 0 else 1e-3 * lab.diag)  # a still input: 0.1 % of the diagonal
+
+    def resolve_one(mesh: np.ndarray) -> np.ndarray:
+        return repair_batch(lab, base, mesh[None], f, repair, False).vertices[0].numpy()
+
+    bar = progress_bar(total=len(v), desc="resolving frames", disable=not progress)
+    try:
+        return sequence(v, resolve_one, lambda m: bool(lab.verdict(m)), step, progress=lambda t: bar.update(1))
+    finally:
+        bar.close()

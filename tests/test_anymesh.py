@@ -1,0 +1,157 @@
+"""Any mesh, no run: ``neuralcol.check`` / ``resolve`` / ``resolve_sequence`` and the ``neuralcol`` command."""
+
+from __future__ import annotations
+
+import io
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+import neuralcol
+from neuralcol.cli import EXIT_BAD_INPUT, EXIT_COLLIDES, EXIT_FREE, main
+from neuralcol.errors import UserInputError
+from neuralcol.geometry.mesh_io import read_mesh, write_mesh
+
+
+def spheres(offset: float, subdivisions: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit icospheres, the second shifted by ``offset`` along x (< 2: they overlap)."""
+    s = trimesh.creation.icosphere(subdivisions=subdivisions)
+    v, f = np.asarray(s.vertices, np.float64), np.asarray(s.faces, np.int64)
+    return np.concatenate([v, v + [offset, 0.0, 0.0]]), np.concatenate([f, f + len(v)])
+
+
+def cloth(fold: float, n: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """A square sheet (n x n vertices) whose far half is folded back over the near half and pushed ``fold`` through
+    it (< 0: it stays above): another topology, with boundary."""
+    x, y = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    v = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], 1)
+    far = v[:, 0] > 0.5
+    v[far, 0] = 1.0 - v[far, 0] + 0.02
+    bump = 16 * v[far, 0] * (0.5 - v[far, 0]) * 4 * v[far, 1] * (1.0 - v[far, 1])  # 1 at the folded half's middle
+    v[far, 2] = 0.05 - fold * bump  # fold > 0.05: a dent through the sheet below
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a = (i * n + j).ravel()
+    f = np.concatenate([np.stack([a, a + n, a + 1], 1), np.stack([a + 1, a + n, a + n + 1], 1)])
+    return v, f
+
+
+def test_check_gives_the_exact_verdict_for_any_topology():
+    free, f = spheres(2.5)
+    hit, _ = spheres(1.6)
+    c = neuralcol.check(np.stack([free, hit]), f)
+    assert c.collides.tolist() == [False, True] and c.pairs[0] == 0 and c.pairs[1] > 0
+    assert c.pd[0] < 0 < c.pd[1]
+    cv, cf = cloth(0.3)
+    assert neuralcol.check(cv, cf).collides.tolist() == [True]
+    assert neuralcol.check(cloth(-0.3)[0], cf).collides.tolist() == [False]
+
+
+@pytest.mark.parametrize("make, arg", [(spheres, 1.7), (cloth, 0.3)])
+def test_resolve_without_a_run_frees_a_colliding_mesh_and_keeps_a_free_one(make, arg):
+    hit, f = make(arg)
+    free = make(2.5 if make is spheres else -0.3)[0]
+    r = neuralcol.resolve(np.stack([free, hit]), f)
+    assert r.untouched.tolist() == [True, False]
+    assert np.array_equal(r.vertices[0].numpy(), free)  # bit for bit
+    assert r.pd_input[1] > 0 and r.pd_after[1] <= 0 and r.repaired[1]
+    assert not neuralcol.check(r.vertices[1].numpy(), f).collides[0]  # the exact verdict on what comes back
+    assert 0 < r.displacement_max[1] / r.diagonal < 0.5  # moved, not blown up (how little: research/, docs/)
+
+
+def test_resolve_sequence_without_a_run_frees_every_frame():
+    v0, f = spheres(3.0, subdivisions=1)
+    frames = np.stack([np.where(np.arange(len(v0))[:, None] >= len(v0) // 2, v0 - [s, 0, 0], v0)
+                       for s in np.linspace(0.0, 1.4, 8)])  # the spheres approach and overlap in the last frames
+    seq = neuralcol.resolve_sequence(frames, f)
+    assert not seq.collides.any()
+    assert not neuralcol.check(seq.vertices, f).collides.any()
+    assert np.array_equal(seq.vertices[0], frames[0])  # free and far from the collision: untouched
+    assert neuralcol.check(frames, f).collides[-1]
+
+
+def test_bad_input_is_one_clear_error():
+    v, f = spheres(2.5)
+    with pytest.raises(UserInputError, match="faces index vertices"):
+        neuralcol.check(v[:10], f)
+    with pytest.raises(UserInputError, match="shape"):
+        neuralcol.check(v[:, :2], f)
+    bad = v.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(UserInputError, match="NaN or inf"):
+        neuralcol.resolve(bad, f)
+
+
+def test_a_run_of_another_topology_is_one_clear_error():
+    v, f = spheres(1.7)
+
+    class Run:  # what _check_run_topology reads of a TrainedRun
+        run_dir, n_vertices, faces = "some_run", 2161, np.zeros((4318, 3), np.int64)
+
+    with pytest.raises(UserInputError, match="some_run: trained on meshes of 2161 vertices.*without a run"):
+        neuralcol.resolve(v, f, run=Run())
+
+
+@pytest.fixture()
+def folder(tmp_path) -> Path:
+    d = tmp_path / "in"
+    write_mesh(d / "2.obj", *spheres(2.5))
+    write_mesh(d / "10.obj", *spheres(1.7))
+    write_mesh(d / "sheet.ply", *cloth(0.3))  # another topology, another format
+    return d
+
+
+def _run(*argv) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    code = main([str(a) for a in argv], out, err)
+    return code, out.getvalue(), err.getvalue()
+
+
+def test_check_command_lines_json_and_exit_codes(folder):
+    code, out, err = _run("check", folder, "--json")
+    rows = [json.loads(line) for line in out.splitlines()]
+    assert code == EXIT_COLLIDES and not err
+    assert [Path(r["file"]).name for r in rows] == ["2.obj", "10.obj", "sheet.ply"]
+    assert [r["collides"] for r in rows] == [False, True, True] and set(rows[0]) == {"file", "collides", "pairs", "pd"}
+    assert _run("check", folder / "2.obj")[0] == EXIT_FREE
+    code, out, err = _run("check", folder / "2.obj", folder / "missing.obj")
+    assert code == EXIT_BAD_INPUT and "missing.obj: no such file" in err and "2.obj" in out  # the rest still checked
+
+
+def test_resolve_command_writes_each_result_in_its_format(folder, tmp_path):
+    out_dir = tmp_path / "out"
+    code, out, err = _run("resolve", folder, "--out", out_dir, "--json", "--no-progress")
+    assert code == EXIT_FREE, err
+    rows = {Path(r["file"]).name: r for r in map(json.loads, out.splitlines())}
+    assert set(rows["10.obj"]) == {"file", "out", "collides_before", "collides_after", "pd_before", "pd_after",
+                                   "max_move", "seconds"}
+    assert (out_dir / "2.obj").read_bytes() == (folder / "2.obj").read_bytes()  # free: written unchanged
+    assert rows["2.obj"]["max_move"] == 0 and not rows["2.obj"]["collides_before"]
+    for name in ("10.obj", "sheet.ply"):
+        assert rows[name]["collides_before"] and not rows[name]["collides_after"] and rows[name]["pd_after"] <= 0
+        v, f = read_mesh(out_dir / name)
+        assert not neuralcol.check(v, f).collides[0]  # the file as written is free
+    assert _run("check", out_dir)[0] == EXIT_FREE
+
+
+def test_resolve_command_sequence_and_clear_errors(tmp_path):
+    v0, f = spheres(3.0, subdivisions=1)
+    d = tmp_path / "motion"
+    for t, s in enumerate(np.linspace(0.0, 1.4, 6)):
+        write_mesh(d / f"{t}.obj", np.where(np.arange(len(v0))[:, None] >= len(v0) // 2, v0 - [s, 0, 0], v0), f)
+    code, out, err = _run("resolve", d, "--out", tmp_path / "fixed", "--sequence", "--json", "--no-progress")
+    assert code == EXIT_FREE, err
+    assert not any(json.loads(line)["collides_after"] for line in out.splitlines())
+    write_mesh(d / "other.obj", *spheres(2.5, subdivisions=2))
+    code, _, err = _run("resolve", d, "--out", tmp_path / "fixed2", "--sequence")
+    assert code == EXIT_BAD_INPUT and "--sequence" in err and "topologies" in err
+
+
+def test_the_console_script_is_installed():
+    script = Path(sys.executable).parent / "neuralcol"
+    res = subprocess.run([str(script), "--help"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and "neuralcol check" in res.stdout and "resolve" in res.stdout
