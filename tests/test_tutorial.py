@@ -11,10 +11,11 @@ paths land there), with the repository on PYTHONPATH and this interpreter's fold
 The only changes, each asserted to apply (so that none goes stale):
 
 1. ``python -m bench.newuser_hand ...`` gets ``--poses 24`` (24 meshes instead of 150);
-2. ``python -m experiments.run ...`` gets ``TINY`` appended: the tiny presets, labels in this process, 4 handler
-   inputs, and a box widened by half its range (``autoencoder.box_margin=0.5``: the tiny autoencoder's own box
-   decodes no self-colliding sample, and the later blocks need the run's ``handling/example_0_input.obj``); one
-   short training, reused by every later block;
+2. ``python -m experiments.run ...`` gets ``TINY`` appended: the tiny presets of the detector and the evaluation
+   stages (the latent space stays the tutorial's: ``dataset=meshes``'s PCA, fit in milliseconds; its box, not
+   fitted at ``detector=tiny``, decodes self-colliding samples, which the later blocks need for the run's
+   ``handling/example_0_input.obj``), labels in this process, 4 handler inputs; one short training, reused by every
+   later block;
 3. the block ``tensorboard --logdir DIR`` starts the server on a free port, checks that it serves the stage runs
    the tutorial describes, and stops it.
 """
@@ -35,11 +36,11 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 TUTORIAL = ROOT / "docs" / "tutorial.md"
 RUNNABLE, SHOWN = ("bash", "python"), ("text",)
-TINY = ("autoencoder=tiny detector=tiny realistic=tiny speed_accuracy=tiny "
+TINY = ("detector=tiny realistic=tiny speed_accuracy=tiny "
         "labeling.pool.workers=0 labeling.pool.progress=false "
         "handler.n_inputs=4 "
-        "handler.verify_margins=[] n_example_meshes=0 detector.tensorboard_examples=2 autoencoder.box_margin=0.5")
-STAGES = ["autoencoder_level1", "autoencoder_level2", "data", "detector_active", "handling", "latent"]
+        "handler.verify_margins=[] n_example_meshes=0 detector.tensorboard_examples=2")
+STAGES = ["data", "detector_active", "handling", "latent"]  # (autoencoder_level1, _level2: autoencoder=cpu only)
 FENCE = re.compile(r"^```(\S*)\n(.*?)^```\s*$", re.M | re.S)
 
 

@@ -177,7 +177,8 @@ def load_mesh_dataset(
     if not p.exists():
         raise DatasetNotFoundError(
             f"{p}: data set not found; put the meshes there (a folder of .obj/.ply/.off files or one "
-            ".h5/.npz file), or set NEURALCOL_DATA / paths.data_dir to the folder that holds it"
+            ".h5/.npz file), or point to it with dataset.source.path=DIR (or NEURALCOL_DATA / paths.data_dir for "
+            "the folder that holds the data sets)"
         )
     if p.is_dir():
         verts, faces, names = _load_folder(p, rel_area_tol)

@@ -23,6 +23,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from neuralcol.errors import UserInputError
 from neuralcol.geometry.acap import FEATURE_DIM
 from neuralcol.nn.latent_box import LatentBox
 from neuralcol.utils.files import atomic_path
@@ -49,14 +50,14 @@ def fit_pca(x: np.ndarray, dim: int) -> PCABasis:
     """The first ``dim`` principal components of the rows ``x (N, P)`` (centred on their mean).
 
     Raises:
-        ValueError: ``dim`` exceeds what ``N`` rows can span (``N - 1``).
+        UserInputError (a ValueError): ``dim`` exceeds what ``N`` rows can span (``N - 1``).
     """
     x = np.asarray(x, dtype=np.float64)
     if x.ndim != 2:
         raise ValueError(f"x has shape {x.shape}, expected (N, P)")
     if not 1 <= dim <= len(x) - 1:
-        raise ValueError(f"a PCA of {len(x)} training meshes spans at most {len(x) - 1} dimensions, asked for {dim}; "
-                         "lower dataset.latent.n_components (or level2_dim), or train on more meshes")
+        raise UserInputError(f"a PCA of {len(x)} training meshes spans at most {len(x) - 1} dimensions, asked for "
+                             f"{dim}; lower dataset.latent.n_components (or level2_dim), or train on more meshes")
     mean = x.mean(0)
     _, s, vt = np.linalg.svd(x - mean, full_matrices=False)
     return PCABasis(mean, vt[:dim].copy(), s[:dim].copy())
