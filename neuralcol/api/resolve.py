@@ -204,10 +204,10 @@ class ResolveMixin:
         from neuralcol.handler.resolve import UNTOUCHED, displacement_stats, resolve_meshes
 
         pd_in = self._pd(v_user)
-        rep = self.repair_settings(repair) if verify else None
+        all_free = len(pd_in) > 0 and bool((pd_in <= 0).all())
+        rep = self.repair_settings(repair) if verify and not all_free else None  # (reading it costs ~2 ms)
         if rep is not None:
             self.label_pool()  # the repair asks the run's labeler in this process
-        all_free = len(pd_in) > 0 and bool((pd_in <= 0).all())
         net = None if all_free else self.on_codes  # (the detector over codes costs ~10 ms to build on SCAPE)
         res = resolve_meshes(net, self.space, v_user, self._pd, settings, margins, batch, objective=target,
                              anchor=anchor, pd_input=pd_in, repair=rep,
