@@ -18,6 +18,7 @@ from bench.timing import per_mesh_times, ratio, summarize
 FULL_LABEL_VS_MESHLAB = 0.75  # target: full label / MeshLab's self-intersection filter, per SCAPE mesh
 VERDICT_VS_FULL_LABEL_COLLIDING = 0.6  # target: verdict / full label on colliding SCAPE poses
 RESOLVE_FREE_MS = 20.0  # target: resolve of one free SCAPE mesh with the shipped model, ms
+RESOLVE_RUNLESS_COLLIDING_S = 1.0  # target: resolve of one colliding SCAPE pose without a run (2k vertices), s
 
 
 def _jittered_subdivision(verts, faces, levels: int, rng):
@@ -115,6 +116,9 @@ def measure(ctx: BenchContext) -> dict:
             VERDICT_VS_FULL_LABEL_COLLIDING),
         "resolve_free_ms": contenders.target("resolve_free_ms", resolve_ms, RESOLVE_FREE_MS),
         "resolve_free_bit_identical": contenders.target("resolve_free_bit_identical", identical, 1, "=="),
+        "resolve_runless_colliding_s": contenders.target(
+            "resolve_runless_colliding_s", out.get("resolve_runless_colliding_s", {}).get("median"),
+            RESOLVE_RUNLESS_COLLIDING_S),
     }
     return out
 
@@ -139,5 +143,12 @@ def measure_contenders(ctx: BenchContext, lab, verts: np.ndarray, faces: np.ndar
             notes.append(f"resolve: pretrained('scape', workers=0).resolve of SCAPE mesh {ds.names[k]!r}")
         except Exception as err:  # the shipped model cannot load here: reported, not fatal
             notes.append(f"resolve not measured: pretrained('scape') failed: {type(err).__name__}: {err}")
+        n_trained = 2 if ctx.quick else 6
+        try:
+            out.update(contenders.resolve_colliding(coll, faces, verts[0], n_trained))
+            notes.append(f"resolve of the colliding poses: without a run (all {len(coll)}) and with "
+                         f"pretrained('scape') (the first {n_trained}), each mesh by both in turn")
+        except Exception as err:
+            notes.append(f"resolve of colliding poses not measured: {type(err).__name__}: {err}")
     ctx.notes["labeler"] = "; ".join(notes)
     return out

@@ -200,6 +200,38 @@ def resolve_free(verts: np.ndarray, reps: int) -> dict:
             "resolve_free_untouched": scalar(int(untouched))}
 
 
+def resolve_colliding(meshes: np.ndarray, faces: np.ndarray, rest: np.ndarray, n_trained: int) -> dict:
+    """Seconds per colliding mesh (B, V, 3) of ``neuralcol.resolve`` without a run (the exact repairs; the labeler
+    built once, outside the timing) and, on the first ``n_trained`` of them, of the shipped SCAPE model's
+    ``resolve`` (its learned handler, then the same repairs), side by side: each mesh resolved by both in turn; and
+    the share each frees (exact).
+
+    Raises:
+        Whatever loading the shipped model raises (the caller reports it).
+    """
+    import neuralcol
+    from bench.timing import scalar
+    from neuralcol.api.anymesh import labeler_for, repair_batch
+
+    lab = labeler_for(faces, rest)
+    runless, trained, free_runless, free_trained = [], [], [], []
+    with neuralcol.pretrained("scape", workers=0) as run:
+        for k, v in enumerate(meshes):
+            t0 = time.perf_counter()
+            r = repair_batch(lab, rest, v[None], faces, None, False)
+            runless.append(time.perf_counter() - t0)
+            free_runless.append(bool(r.pd_after[0] <= 0))
+            if k < n_trained:
+                t0 = time.perf_counter()
+                r = run.resolve(v[None])
+                trained.append(time.perf_counter() - t0)
+                free_trained.append(bool(r.pd_after[0] <= 0))
+    return {"resolve_runless_colliding_s": summarize(runless), "resolve_trained_colliding_s": summarize(trained),
+            "resolve_runless_vs_trained_colliding": ratio(summarize(runless[:n_trained]), summarize(trained)),
+            "resolve_runless_freed": scalar(float(np.mean(free_runless))),
+            "resolve_trained_freed": scalar(float(np.mean(free_trained)))}
+
+
 def target(key: str, value: float | None, limit: float, kind: str = "<=") -> dict:
     """A target ``key <= limit`` (``kind="=="``: ``key == limit``) and whether ``value`` meets it (None: not
     measured)."""
