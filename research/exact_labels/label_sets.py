@@ -2,12 +2,14 @@
 labeler of a given checkout, to compare the verdicts of two versions of the code on the same meshes:
 
     git worktree add /tmp/before b2549cd     # the labeler before exact verdicts (touch_tol 1e-6 there)
-    .venv/bin/python research/exact_labels/label_sets.py /tmp/before before.npz ~/neuralcol-cache/collision/*/realistic_*.npz
-    .venv/bin/python research/exact_labels/label_sets.py . after.npz ~/neuralcol-cache/collision/*/realistic_*.npz
+    SETS=~/neuralcol-cache/collision/*/realistic_*.npz
+    .venv/bin/python research/exact_labels/label_sets.py /tmp/before before.npz $SETS
+    .venv/bin/python research/exact_labels/label_sets.py . after.npz $SETS
     .venv/bin/python research/exact_labels/label_sets.py --compare before.npz after.npz
 
-Faces come from the cached generated data sets or SCAPE, by vertex count. Each set is labeled against its first mesh as the rest mesh (the verdict does not depend on it, up to the old
-tolerance's mean edge length). Prints per set: meshes, colliding before/after, verdicts that differ.
+Faces come from the cached generated data sets or SCAPE, by vertex count. Each set is labeled against its first
+mesh as the rest mesh (the verdict does not depend on it, up to the old tolerance's mean edge length). Prints per
+set: meshes, colliding before/after, verdicts that differ.
 """
 
 from __future__ import annotations
@@ -64,7 +66,8 @@ def compare(before: str, after: str) -> None:
         ca, cb = a[key], b[key]
         pa, pb = a[key.replace(":collides", ":pd")], b[key.replace(":collides", ":pd")]
         free = ~ca & ~cb
-        print(f"{key[:-9]}: {len(ca)} meshes; colliding {ca.sum()} -> {cb.sum()}; verdicts differ {int((ca != cb).sum())}; "
+        print(f"{key[:-9]}: {len(ca)} meshes; colliding {ca.sum()} -> {cb.sum()}; "
+              f"verdicts differ {int((ca != cb).sum())}; "
               f"free PDs equal {int((pa[free] == pb[free]).sum())}/{int(free.sum())}; colliding PDs max |diff| "
               f"{np.abs(pa[ca & cb] - pb[ca & cb]).max(initial=0):.3g}")
 
