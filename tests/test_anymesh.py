@@ -155,3 +155,18 @@ def test_the_console_script_is_installed():
     script = Path(sys.executable).parent / "neuralcol"
     res = subprocess.run([str(script), "--help"], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0 and "neuralcol check" in res.stdout and "resolve" in res.stdout
+
+
+def test_the_runless_repair_defaults_are_the_configs():
+    """neuralcol.resolve without a run uses RepairSettings() / UntangleSettings(): they must be handler.repair of
+    conf/handler/default.yaml, the one source of the hyperparameters."""
+    from omegaconf import OmegaConf
+
+    from neuralcol.handler.contact_repair import RepairSettings
+    from neuralcol.handler.untangle import UntangleSettings
+
+    handler = OmegaConf.load(Path(__file__).resolve().parents[1] / "conf/handler/default.yaml")
+    conf = OmegaConf.to_container(handler.repair, resolve=True)
+    untangle = conf.pop("untangle")
+    assert RepairSettings(**conf) == RepairSettings()
+    assert UntangleSettings(**untangle) == UntangleSettings()

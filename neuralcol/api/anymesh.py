@@ -128,13 +128,13 @@ def repair_batch(lab, base: np.ndarray, v: np.ndarray, f: np.ndarray, repair, pr
     RepairSettings or None (the defaults)."""
     from neuralcol.api.results import Resolved
     from neuralcol.handler.contact_repair import RepairSettings, outward_sign, repair_meshes
-    from neuralcol.handler.resolve import cap_displacements, displacement_stats
+    from neuralcol.handler.resolve import cap_freed, displacement_stats
 
     settings = RepairSettings() if repair is None else repair
     pd_in = lab.label_batch(v).pd
     out, pd_out = v.copy(), pd_in.copy()
     rows = np.flatnonzero(pd_in > 0)
-    repaired, cap = np.zeros(len(v), bool), np.full(len(v), np.nan)
+    repaired, cap = np.zeros(len(v), bool), np.full(len(v), np.nan)  # (cap: NaN where not tried)
     if len(rows):
         fixed, _, _ = repair_meshes(v[rows], f, lab, settings, float(lab.eps), float(lab.diag), outward_sign(f, base),
                                     progress=progress)
@@ -142,13 +142,7 @@ def repair_batch(lab, base: np.ndarray, v: np.ndarray, f: np.ndarray, repair, pr
         better = pd_fix < pd_in[rows]  # (a repair that makes things worse is not kept)
         keep = rows[better]
         out[keep], pd_out[keep], repaired[keep] = fixed[better], pd_fix[better], True
-        freed = keep[pd_out[keep] <= 0]
-        if settings.cap_steps and len(freed):
-            kept, pd_c, cap[freed] = cap_displacements(
-                v[freed], out[freed], lambda m: lab.label_batch(m).pd, settings.cap_steps,
-                lambda m: np.array([lab.verdict(x) for x in m], bool))
-            clipped = cap[freed] < 1
-            out[freed], pd_out[freed[clipped]] = kept, pd_c[clipped]
+        cap = cap_freed(v, out, pd_in, pd_out, lambda m: lab.label_batch(m).pd, settings.cap_steps, lab)
     moved = displacement_stats(v, out, float(lab.diag))
     n = len(v)
     nan = np.full(n, np.nan)

@@ -475,7 +475,7 @@ def resolve_meshes(net: torch.nn.Module | None, space, v_user: torch.Tensor,
             moved = shrink[rows] < 1
             out[rows], pd_v[rows[moved]], repaired[rows[moved]] = kept, pd_s[moved], True
             stage[rows[moved]] = len(margins) + 1
-        cap = _capped(v_user.numpy(), out, pd_in, pd_v, label, repair.cap_steps, labeler)
+        cap = cap_freed(v_user.numpy(), out, pd_in, pd_v, label, repair.cap_steps, labeler)
     else:
         shrink = cap = None
     if certify is None:
@@ -487,8 +487,8 @@ def resolve_meshes(net: torch.nn.Module | None, space, v_user: torch.Tensor,
                           decide.exact_share, shrink, cap)
 
 
-def _capped(x: np.ndarray, out: np.ndarray, pd_in: np.ndarray, pd_v: np.ndarray, label, steps: int,
-            labeler) -> np.ndarray:
+def cap_freed(x: np.ndarray, out: np.ndarray, pd_in: np.ndarray, pd_v: np.ndarray, label, steps: int,
+              labeler) -> np.ndarray:
     """``repair.cap_steps``: the colliding inputs returned free by the exact label get :func:`cap_displacements`
     (bisection on ``labeler.verdict``; ``out`` and ``pd_v`` updated in place); returns the cap per input (NaN where
     not tried)."""
@@ -595,7 +595,7 @@ def _repair_first_then_rest(net, space, v_user, label, settings, margins, batch_
     cap = np.full(n, np.nan)
     if len(freed):  # (fancy indexing copies: _capped updates these, then they go back)
         out_f, pd_f = out[freed], pd_v[freed]
-        cap[freed] = _capped(v_user[torch.as_tensor(freed)].numpy(), out_f, pd_in[freed], pd_f, label,
+        cap[freed] = cap_freed(v_user[torch.as_tensor(freed)].numpy(), out_f, pd_in[freed], pd_f, label,
                              repair.cap_steps, labeler)
         out[freed], pd_v[freed] = out_f, pd_f
     exact = free = share = None
