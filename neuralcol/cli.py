@@ -152,7 +152,7 @@ def _write(path: Path, source: Path, vertices: np.ndarray, faces: np.ndarray, un
 def _resolve_each(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarray, run, progress: bool):
     """Resolve meshes (B, V, 3) of one topology one at a time (one labeler for all of them without a run): the
     results (B, V, 3), PD before and after (B,), untouched (B,) bool and seconds (B,) per mesh."""
-    from neuralcol.api.anymesh import labeler_for, repair_batch
+    from neuralcol.api.anymesh import labeler_for, repair_batch, resolve
     from neuralcol.utils.progress import progress_bar
 
     lab = None if run is not None else labeler_for(faces, rest)
@@ -165,8 +165,6 @@ def _resolve_each(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarray, run
         if run is None:
             r = repair_batch(lab, rest, vertices[k:k + 1], faces, None, False)
         else:
-            from neuralcol.api.anymesh import resolve
-
             r = resolve(vertices[k], faces, run=run)
         result[k] = r.vertices[0].detach().cpu().numpy()
         pd_b[k], pd_a[k] = r.pd_input[0], r.pd_after[0]
@@ -176,7 +174,7 @@ def _resolve_each(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarray, run
 
 
 def resolve_main(args, out: TextIO, err: TextIO) -> int:
-    from neuralcol.api.anymesh import resolve_sequence
+    from neuralcol.api.anymesh import check, resolve_sequence
 
     inputs = Inputs(args.paths, err, args.rest)
     outdir = Path(args.out)
@@ -210,8 +208,6 @@ def resolve_main(args, out: TextIO, err: TextIO) -> int:
         t0 = time.perf_counter()
         try:
             if args.sequence:
-                from neuralcol.api.anymesh import check
-
                 result = resolve_sequence(vertices, faces, run=run, rest=None if run else rest,
                                           progress=progress).vertices
                 chk0, chk1 = check(vertices, faces, rest=rest), check(result, faces, rest=rest)
