@@ -238,3 +238,26 @@ def test_edge_strain():
     np.testing.assert_allclose(edge_strain(v[None], 1.1 * v[None], f), [0.1 * lengths.max() / lengths.mean()])
     w = v + 0.3  # a translation strains nothing
     assert edge_strain(v[None], w[None], f)[0] < 1e-12
+
+
+def test_retry_runs_only_where_the_repairs_fail_and_is_kept_only_where_it_frees():
+    v, f, rest = two_spheres(0.06, subdivisions=2)
+    lab = ExactLabeler(f, rest)
+    diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
+    stalled = {"max_iter": 0, "extra_iter": 0}  # an untangle that gives up at once
+
+    def run(retry, untangle=stalled):
+        s = RepairSettings(method="untangle", untangle=untangle, retry=retry)
+        return repair_meshes(np.stack([v, rest]), f, lab, s, lab.eps, diag, outward_sign(f, rest))
+
+    out0, ok0, _ = run(None)
+    assert ok0.tolist() == [False, True] and np.array_equal(out0[0], v)
+    out1, ok1, its1 = run({"max_iter": 80})  # the retry frees the colliding one; the free one is never retried
+    assert ok1.tolist() == [True, True] and its1[0] > 0 and its1[1] == 0 and np.array_equal(out1[1], rest)
+    assert not lab.label(out1[0]).collides
+    out2, ok2, _ = run({"anchor": 0.5})  # a retry that fails too leaves the earlier result as it was
+    assert ok2.tolist() == [False, True] and np.array_equal(out2[0], out0[0])
+    out3, ok3, _ = run({"max_iter": 0}, untangle=None)  # the repairs free it: the retry never runs
+    assert ok3[0] and np.array_equal(out3[0], run(None, untangle=None)[0][0])
+    with pytest.raises(ValueError, match="retry"):
+        RepairSettings(retry={"ancor": 0.01})

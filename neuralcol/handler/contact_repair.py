@@ -165,6 +165,8 @@ class RepairSettings:
                                 # minimisation; contact_untangle (default, issue 43 rule v2): the push, and untangle
                                 # (from the input) where it fails
     untangle: dict | None = None  # settings of neuralcol.handler.untangle.UntangleSettings (None: its defaults)
+    retry: dict | None = None   # untangle settings changed for a third attempt, from the input, where the repairs
+                                # above leave a mesh colliding; kept only where it frees it (None: no third attempt)
     shrink_steps: int = 0       # resolve: bisection steps shrinking the neural path's correction (0: off)
     cap_steps: int = 6          # resolve: bisection steps capping a freed result's displacement (0: off; the
                                 # default since stop 53, rule v10 met)
@@ -179,6 +181,13 @@ class RepairSettings:
                 raise ValueError(f"handler.repair.{key}={value!r}; use 0 (off) or a whole number of steps")
         if self.method not in REPAIR_METHODS:
             raise ValueError(f"handler.repair.method={self.method!r}; use one of {', '.join(REPAIR_METHODS)}")
+        if self.retry is not None:
+            from neuralcol.handler.untangle import UntangleSettings
+
+            known = set(UntangleSettings.__dataclass_fields__)
+            if not isinstance(self.retry, dict) or set(self.retry) - known:
+                raise ValueError(f"handler.repair.retry={self.retry!r}; give null or untangle settings to change "
+                                 f"(keys of {sorted(known)})")
 
 
 def repair_settings(cfg) -> RepairSettings | None:
@@ -213,7 +222,9 @@ def repair_meshes(vertices: np.ndarray, faces: np.ndarray, labeler, settings: Re
                   diagonal: float, sign: float, progress: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The repair of every mesh (N, V, 3), in this process: :func:`repair_contacts`, with ``method: untangle``
     :func:`~neuralcol.handler.untangle.untangle` (``settings.untangle``), with ``method: contact_untangle`` the
-    former and, for the meshes it leaves colliding, the latter from the input (iterations: the two summed).
+    former and, for the meshes it leaves colliding, the latter from the input (iterations: the two summed). With
+    ``settings.retry`` (untangle settings changed) and an untangle in the method, a mesh still colliding gets one more
+    untangle from the input with those settings; its result replaces the one before only where it is free.
 
     Args:
         eps: the labeler's boundary width (``settings.delta`` is in its units).
@@ -227,13 +238,18 @@ def repair_meshes(vertices: np.ndarray, faces: np.ndarray, labeler, settings: Re
 
     v = np.asarray(vertices, np.float64)
     out, ok, its = np.empty_like(v), np.zeros(len(v), bool), np.zeros(len(v), np.int64)
-    untangle_one = contact_one = None
+    untangle_one = contact_one = retry_one = None
     if settings.method in ("untangle", "contact_untangle") and len(v):
         from neuralcol.handler.untangle import SmoothField, UntangleSettings, untangle
 
         us = UntangleSettings(**(settings.untangle or {}))
         field = SmoothField(faces, v.shape[1], us.stiffness, us.anchor)
         untangle_one = lambda x: untangle(x, labeler, us, field)  # noqa: E731
+        if settings.retry:
+            ur = UntangleSettings(**{**(settings.untangle or {}), **settings.retry})
+            field_r = SmoothField(faces, v.shape[1], ur.stiffness, ur.anchor) if (
+                (ur.stiffness, ur.anchor) != (us.stiffness, us.anchor)) else field
+            retry_one = lambda x: untangle(x, labeler, ur, field_r)  # noqa: E731
     if settings.method in ("contact", "contact_untangle") and len(v):
         w = diffusion_operator(faces, v.shape[1])
         contact_one = lambda x: repair_contacts(  # noqa: E731
@@ -245,4 +261,9 @@ def repair_meshes(vertices: np.ndarray, faces: np.ndarray, labeler, settings: Re
         if not r.resolved and contact_one is not None and untangle_one is not None:
             u = untangle_one(v[k])
             out[k], ok[k], its[k] = u.vertices, u.resolved, r.iterations + u.iterations
+        if not ok[k] and retry_one is not None:
+            u = retry_one(v[k])
+            its[k] += u.iterations
+            if u.resolved:
+                out[k], ok[k] = u.vertices, True
     return out, ok, its

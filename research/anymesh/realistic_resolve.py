@@ -4,6 +4,11 @@ made from its poses: share freed, how far vertices move, seconds per mesh, bit-i
     .venv/bin/python -m research.anymesh.realistic_resolve [--datasets scape proc_hand proc_cloth anny_body]
         [--cache ~/neuralcol-cache] [--data ../shared/data] [--max-meshes 60] [--max-meshes-body 16]
         [--n-free 20] [--motions 2] [--frames 24] [--seed 0] [--out outputs/anymesh/realistic_resolve.json]
+        [--exclude-from EARLIER.json] [--repair KEY=VALUE ...] [--runs NAME=RUN_DIR ...]
+
+``--exclude-from`` draws held-out meshes (none an earlier output resolved), ``--repair`` changes
+``handler.repair``, ``--runs`` resolves with a data set's trained run (the learned handler, then its repairs)
+instead of the repairs alone (the motions stay without a run).
 
 Per data set (its CPU preset, ``experiment=cpu_<name>``, composed with Hydra's compose API):
 
@@ -109,12 +114,15 @@ def summarize(rows: np.ndarray, per: dict) -> dict:
 
 
 def resolve_meshes_timed(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarray,
-                         progress: Callable[[int, int], None] | None = None) -> dict:
+                         progress: Callable[[int, int], None] | None = None, repair=None, run=None) -> dict:
     """Resolve colliding meshes one at a time without a run, with one labeler built on ``rest``.
 
     Args:
         vertices: (S, V, 3) float64 meshes. faces: (F, 3) int64. rest: (V, 3) float64 rest mesh (the scale).
         progress: called with (done, total) after each mesh.
+        repair: RepairSettings (None: the defaults, ``handler.repair`` of conf/handler/default.yaml).
+        run: a TrainedRun of this topology: ``neuralcol.resolve(mesh, faces, run=run)`` (its learned handler, then
+            its own repairs) instead of the repairs alone.
 
     Returns:
         ``{"vertices": (S, V, 3), "pd_input", "pd_after", "median_move", "largest_move" (fractions of the diagonal),
@@ -133,7 +141,8 @@ def resolve_meshes_timed(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarr
     repaired = np.zeros(n, bool)
     for i in range(n):
         t = time.perf_counter()
-        r = repair_batch(lab, rest, vertices[i:i + 1], faces, None, False)
+        r = (repair_batch(lab, rest, vertices[i:i + 1], faces, repair, False) if run is None
+             else neuralcol.resolve(vertices[i:i + 1], faces, run=run))
         cols["seconds"][i] = time.perf_counter() - t
         out[i] = r.vertices[0].numpy()
         cols["pd_input"][i], cols["pd_after"][i], cols["cap"][i] = r.pd_input[0], r.pd_after[0], r.cap[0]
@@ -143,7 +152,7 @@ def resolve_meshes_timed(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarr
         if progress is not None:
             progress(i + 1, n)
     same = None
-    if n:
+    if n and repair is None and run is None:
         same = bool(np.array_equal(neuralcol.resolve(vertices[:1], faces, run=None, rest=rest).vertices[0].numpy(),
                                    out[0]))
     return {"vertices": out, **cols, "repaired": repaired, "diagonal": float(lab.diag), "labeler_seconds": t_lab,
@@ -152,7 +161,8 @@ def resolve_meshes_timed(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarr
 
 def evaluate_resolve(vertices: np.ndarray, pd: np.ndarray, faces: np.ndarray, rest: np.ndarray, eps: float,
                      clear_eps: float, max_meshes: int, n_free: int, seed: int = 0, kind: np.ndarray | None = None,
-                     kind_names: tuple = (), progress: Callable[[int, int], None] | None = None) -> dict:
+                     kind_names: tuple = (), progress: Callable[[int, int], None] | None = None,
+                     repair=None, exclude: np.ndarray | None = None, run=None) -> dict:
     """The core measurement: resolve the colliding meshes of a labeled set, check the free ones come back untouched.
 
     Args:
@@ -162,6 +172,9 @@ def evaluate_resolve(vertices: np.ndarray, pd: np.ndarray, faces: np.ndarray, re
         max_meshes: the most colliding meshes resolved (:func:`pick_colliding`). n_free: free meshes checked.
         seed: seeds both draws. kind: (M,) int index into ``kind_names`` (how each mesh was made), or None.
         progress: called with (done, total) after each colliding mesh.
+        repair: RepairSettings of the repairs (None: the defaults).
+        exclude: indices never drawn for resolving (a held-out draw: the meshes an earlier run resolved).
+        run: a TrainedRun of this topology to resolve with (None: the repairs alone).
 
     Returns:
         A JSON-able dict: ``available`` / ``used`` counts, ``all`` / ``clear`` / ``near_boundary`` metrics
@@ -175,8 +188,11 @@ def evaluate_resolve(vertices: np.ndarray, pd: np.ndarray, faces: np.ndarray, re
     pd = np.asarray(pd, np.float64)
     clear = clear_mask(pd, eps, clear_eps)
     hit = np.isfinite(pd) & (pd > 0)
-    pick = pick_colliding(pd, clear, max_meshes, seed)
-    res = resolve_meshes_timed(vertices[pick], faces, rest, progress)
+    drawable = pd.copy()
+    if exclude is not None and len(exclude):
+        drawable[np.asarray(exclude, np.int64)] = np.nan
+    pick = pick_colliding(drawable, clear, max_meshes, seed)
+    res = resolve_meshes_timed(vertices[pick], faces, rest, progress, repair, run)
     check = neuralcol.check(res["vertices"], faces, rest=rest) if len(pick) else None
     per = {"freed": np.asarray(res["pd_after"] <= 0, bool),
            "free_by_check": ~check.collides if check is not None else np.zeros(0, bool),
@@ -462,6 +478,41 @@ def table(results: dict) -> str:
     return "\n".join(lines)
 
 
+def repair_of(overrides: list[str]):
+    """RepairSettings: ``handler.repair`` of conf/handler/default.yaml with ``key=value`` overrides (None: none
+    given, the defaults)."""
+    if not overrides:
+        return None
+    from omegaconf import OmegaConf
+
+    from neuralcol.handler.contact_repair import repair_from_config
+
+    handler = OmegaConf.load(ROOT / "conf" / "handler" / "default.yaml")
+    return repair_from_config(OmegaConf.create({"handler": handler}), overrides=overrides)
+
+
+def run_of(runs: list[str], name: str):
+    """The TrainedRun given for data set ``name`` in ``--runs NAME=RUN_DIR ...`` (None: none given for it)."""
+    dirs = dict(r.split("=", 1) for r in runs)
+    unknown = set(dirs) - set(DATASETS)
+    if unknown:
+        raise SystemExit(f"--runs: unknown data set(s) {sorted(unknown)}; give NAME=RUN_DIR with NAME in {DATASETS}")
+    if name not in dirs:
+        return None
+    from neuralcol.api import load_run
+
+    return load_run(dirs[name])
+
+
+def excluded_rows(path: Path | None, name: str, n_realistic: int) -> np.ndarray | None:
+    """The realistic-set rows an earlier output (``--out`` JSON) resolved for data set ``name``: a held-out draw
+    leaves them out. (Near-boundary meshes are made anew per seed and are not excluded.)"""
+    if path is None:
+        return None
+    per = json.loads(Path(path).read_text())["results"].get(name, {}).get("resolve", {}).get("per_mesh", [])
+    return np.array([m["index"] for m in per if m["index"] < n_realistic], np.int64)
+
+
 def run_dataset(name: str, args) -> dict:
     """The whole study of one data set (module docstring), as a JSON-able dict."""
     t0 = time.perf_counter()
@@ -488,7 +539,8 @@ def run_dataset(name: str, args) -> dict:
                            np.array([names.index(f"near:{k}") for k in near["kind"]], np.int64)])
     res = evaluate_resolve(np.concatenate([d["meshes"].vertices, near["vertices"]]),
                            np.concatenate([d["pd"], near["pd"]]), faces, rest, d["eps"], clear_eps, max_meshes,
-                           args.n_free, args.seed, kind, names, progress)
+                           args.n_free, args.seed, kind, names, progress, repair_of(args.repair),
+                           excluded_rows(args.exclude_from, name, len(d["pd"])), run_of(args.runs, name))
     res["near_boundary_made"] = {"n": int(len(near["pd"])), "tried": near["tried"], "kind": near["kind"].tolist(),
                                  "source": near["source"].tolist(), "t": near["t"].tolist(),
                                  "pd_frac": (near["pd"] / float(d["labeler"].diag)).tolist()}
@@ -508,6 +560,7 @@ def run_dataset(name: str, args) -> dict:
         print(f"[{name}] only {len(motions)} of {args.motions} motions found", flush=True)
     out = {"dataset": name, "n_vertices": int(rest.shape[0]), "n_faces": int(len(faces)),
            "diagonal": float(np.linalg.norm(rest.max(0) - rest.min(0))), "latent_space": d["latent"],
+           "resolved_with": dict(r.split("=", 1) for r in args.runs).get(name, "repairs"),
            "realistic_set": {"n": int(len(d["pd"])), "from_cache": d["cached"], "seconds": d["seconds"],
                              "clear_eps": float(cfg.realistic.clear_eps), "eps": d["eps"]},
            "max_meshes": int(max_meshes), "resolve": res, "motions": motions, "motions_wanted": int(args.motions),
@@ -533,6 +586,13 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--frames", type=int, default=24)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2, help="label workers building the realistic sets")
+    ap.add_argument("--exclude-from", type=Path, default=None,
+                    help="an earlier output JSON: the realistic meshes it resolved are not drawn (a held-out draw)")
+    ap.add_argument("--repair", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="handler.repair overrides, e.g. retry.anchor=0.01 (default: conf/handler/default.yaml)")
+    ap.add_argument("--runs", nargs="*", default=[], metavar="NAME=RUN_DIR",
+                    help="resolve with these data sets' trained runs (the learned handler, then the repairs); the "
+                         "data sets without one are resolved by the repairs alone")
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "anymesh" / "realistic_resolve.json")
     args = ap.parse_args(argv)
     args.cache, args.data = args.cache.expanduser().resolve(), args.data.expanduser().resolve()
