@@ -147,5 +147,6 @@ def test_tutorial_runs(tmp_path):
     # what the tutorial says the blocks leave behind
     run = tmp_path / "outputs" / "tutorial"
     for rel in ("metrics.json", ".hydra/config.yaml", "subdomains.png", "scalars.png", "example_0_resolved.obj",
-                "handled/example_0_input_resolved.obj", "export/manifest.json"):
+                "handled/example_0_input_resolved.obj", "fixed/example_0_input.obj", "fixed/pose_000.obj",
+                "export/manifest.json"):
         assert (run / rel).is_file(), f"{run / rel} is missing after the tutorial"

@@ -428,7 +428,8 @@ def _kind_name(d: dict, k) -> str:
 
 # ----------------------------------------------------------------------------------------------------------- report
 def targets(name: str, r: dict) -> dict:
-    """Each target of the study for data set ``name``: ``{key: {"value", "target", "met"}}`` (None values: not met)."""
+    """Each target of the study for data set ``name``: ``{key: {"value", "target", "met"}}`` (None values: not met;
+    the motion targets only where motions were asked for)."""
     a = r["resolve"]["all"]
     sec_target = TARGETS["seconds_large"] if name in LARGE else TARGETS["seconds_small"]
     motions = r.get("motions", [])
@@ -442,6 +443,8 @@ def targets(name: str, r: dict) -> dict:
         "motion_every_frame_free": (float(all(m["every_frame_free"] for m in motions)) if motions else None, 1.0,
                                     ">="),
     }
+    if not r.get("motions_wanted", 1):  # no motions asked for (--motions 0): their targets are not read
+        rows = {k: v for k, v in rows.items() if not k.startswith("motion_")}
     out = {}
     for k, (v, tgt, op) in rows.items():
         # the sequence caps the correction's change at exactly the input's largest move: a ratio of 1 + 1 ulp is 1
