@@ -26,7 +26,7 @@ Symbols: V vertices, F faces, P intersecting triangle pairs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -165,8 +165,9 @@ class RepairSettings:
                                 # minimisation; contact_untangle (default, issue 43 rule v2): the push, and untangle
                                 # (from the input) where it fails
     untangle: dict | None = None  # settings of neuralcol.handler.untangle.UntangleSettings (None: its defaults)
-    retry: dict | None = None   # untangle settings changed for a third attempt, from the input, where the repairs
-                                # above leave a mesh colliding; kept only where it frees it (None: no third attempt)
+    retry: dict | None = field(default_factory=lambda: {"anchor": 0.01})  # untangle settings changed for a third
+    # attempt, from the input, where the repairs above leave a mesh colliding; kept only where it frees it (None: no
+    # third attempt). Default: a wider field (docs/real_meshes.md "A wider untangle where both repairs fail")
     shrink_steps: int = 0       # resolve: bisection steps shrinking the neural path's correction (0: off)
     cap_steps: int = 6          # resolve: bisection steps capping a freed result's displacement (0: off; the
                                 # default since stop 53, rule v10 met)
