@@ -4,11 +4,12 @@ made from its poses: share freed, how far vertices move, seconds per mesh, bit-i
     .venv/bin/python -m research.anymesh.realistic_resolve [--datasets scape proc_hand proc_cloth anny_body]
         [--cache ~/neuralcol-cache] [--data ../shared/data] [--max-meshes 60] [--max-meshes-body 16]
         [--n-free 20] [--motions 2] [--frames 24] [--seed 0] [--out outputs/anymesh/realistic_resolve.json]
-        [--exclude-from EARLIER.json] [--repair KEY=VALUE ...] [--runs NAME=RUN_DIR ...]
+        [--exclude-from EARLIER.json] [--repair KEY=VALUE ...] [--runs NAME=RUN_DIR ...] [--meshes DIR]
 
-``--exclude-from`` draws held-out meshes (none an earlier output resolved), ``--repair`` changes
-``handler.repair``, ``--runs`` resolves with a data set's trained run (the learned handler, then its repairs)
-instead of the repairs alone (the motions stay without a run).
+``--datasets meshes --meshes DIR`` adds a folder of meshes nobody tuned for (the generic data set, its realistic
+set built like the others'). ``--exclude-from`` draws held-out meshes (none an earlier output resolved),
+``--repair`` changes ``handler.repair``, ``--runs`` resolves with a data set's trained run (the learned handler,
+then its repairs) instead of the repairs alone (the motions stay without a run).
 
 Per data set (its CPU preset, ``experiment=cpu_<name>``, composed with Hydra's compose API):
 
@@ -52,6 +53,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 DATASETS = ("scape", "proc_hand", "proc_cloth", "anny_body")
+FOLDER = "meshes"  # a folder of the user's own meshes (--meshes DIR): the generic data set, dataset=meshes
 LARGE = ("anny_body",)  # ~13k vertices: its own mesh cap and time target
 # the targets the study is read against (fractions of the rest mesh's bounding-box diagonal, seconds)
 TARGETS = {"freed": 0.99, "median_move": 0.002, "p95_largest_move": 0.03, "seconds_small": 1.0,
@@ -280,14 +282,17 @@ def motion_metrics(frames: np.ndarray, faces: np.ndarray, rest: np.ndarray) -> d
 
 
 # ----------------------------------------------------------------------------------------------------------- data
-def compose(dataset: str, cache: Path, data: Path, workers: int):
-    """The CPU preset of ``dataset`` (``experiment=cpu_<dataset>``) with the cache, data folder and label workers."""
+def compose(dataset: str, cache: Path, data: Path, workers: int, folder: Path | None = None):
+    """The CPU preset of ``dataset`` (``experiment=cpu_<dataset>``; ``meshes``: ``dataset=meshes`` on ``folder``)
+    with the cache, data folder and label workers."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
 
+    which = ([f"dataset={FOLDER}", f"dataset.source.path={folder}"] if dataset == FOLDER
+             else [f"experiment=cpu_{dataset}"])
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         return hydra_compose(config_name="config", overrides=[
-            f"experiment=cpu_{dataset}", f"paths.cache_dir={cache}", f"paths.data_dir={data}",
+            *which, f"paths.cache_dir={cache}", f"paths.data_dir={data}",
             f"labeling.pool.workers={workers}", "labeling.pool.progress=false"])
 
 
@@ -519,7 +524,7 @@ def excluded_rows(path: Path | None, name: str, n_realistic: int) -> np.ndarray 
 def run_dataset(name: str, args) -> dict:
     """The whole study of one data set (module docstring), as a JSON-able dict."""
     t0 = time.perf_counter()
-    cfg = compose(name, args.cache, args.data, args.workers)
+    cfg = compose(name, args.cache, args.data, args.workers, args.meshes)
     print(f"[{name}] building / loading the realistic set ...", flush=True)
     d = realistic_data(cfg)
     faces, rest = d["faces"], d["rest"]
@@ -575,7 +580,9 @@ def run_dataset(name: str, args) -> dict:
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(prog="python -m research.anymesh.realistic_resolve",
                                  description=__doc__.splitlines()[0])
-    ap.add_argument("--datasets", nargs="+", default=list(DATASETS), choices=DATASETS)
+    ap.add_argument("--datasets", nargs="+", default=list(DATASETS), choices=(*DATASETS, FOLDER))
+    ap.add_argument("--meshes", type=Path, default=None,
+                    help=f"a folder of meshes of one topology: the data set '{FOLDER}' (dataset=meshes on it)")
     ap.add_argument("--cache", type=Path, default=Path(os.environ.get("NEURALCOL_CACHE",
                                                                       Path.home() / "neuralcol-cache")))
     ap.add_argument("--data", type=Path,
@@ -599,6 +606,10 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "anymesh" / "realistic_resolve.json")
     args = ap.parse_args(argv)
     args.cache, args.data = args.cache.expanduser().resolve(), args.data.expanduser().resolve()
+    if (FOLDER in args.datasets) != (args.meshes is not None):
+        ap.error(f"--datasets {FOLDER} and --meshes DIR go together")
+    if args.meshes is not None:
+        args.meshes = args.meshes.expanduser().resolve()
     from neuralcol.utils.threads import pin_threads
 
     pin_threads(1)
