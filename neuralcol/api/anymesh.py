@@ -3,9 +3,9 @@
 
 Without a run these need only the faces: the exact labeler (:mod:`neuralcol.collision.labeler`) gives the verdict,
 and the exact repairs (:mod:`neuralcol.handler.contact_repair`: the contact push, the untangle where the push fails,
-then the displacement cap) move a colliding mesh until the exact labeler calls it free, as little as they can. With
-a run trained on the mesh's topology, ``resolve`` is :meth:`~neuralcol.api.TrainedRun.resolve` (the learned handler,
-then the same repairs). A free input comes back untouched either way, at the cost of one exact check.
+a wider untangle where both fail, then the displacement cap) move a colliding mesh until the exact labeler calls
+it free, as little as they can. With a run trained on the mesh's topology, ``resolve`` is
+:meth:`~neuralcol.api.TrainedRun.resolve` (the learned handler, then the same repairs). A free input comes back untouched either way, at the cost of one exact check.
 
     import neuralcol
     checked = neuralcol.check(vertices, faces)            # Checked: collides (B,), pairs (B,), pd (B,)
@@ -101,7 +101,7 @@ def resolve(vertices, faces, run=None, rest=None, repair=None, progress: bool = 
     Args:
         vertices: (B, V, 3) meshes or one (V, 3), numpy or torch.
         faces: (F, 3) triangles.
-        run: None (the exact repairs alone: contact push, untangle, displacement cap) or a
+        run: None (the exact repairs alone: contact push, untangles, displacement cap) or a
             :class:`~neuralcol.api.TrainedRun` of this topology (its learned handler, then the same repairs).
         rest: (V, 3) the mesh that sets the scale of the repairs (their separation and largest step are fractions
             of its bounding-box diagonal); None: the first mesh. Without a run only.
