@@ -5,7 +5,8 @@ Without a run these need only the faces: the exact labeler (:mod:`neuralcol.coll
 and the exact repairs (:mod:`neuralcol.handler.contact_repair`: the contact push, the untangle where the push fails,
 a wider untangle where both fail, then the displacement cap) move a colliding mesh until the exact labeler calls
 it free, as little as they can. With a run trained on the mesh's topology, ``resolve`` is
-:meth:`~neuralcol.api.TrainedRun.resolve` (the learned handler, then the same repairs). A free input comes back untouched either way, at the cost of one exact check.
+:meth:`~neuralcol.api.TrainedRun.resolve` (the learned handler, then the same repairs). A free input comes back
+untouched either way, at the cost of one exact check.
 
     import neuralcol
     checked = neuralcol.check(vertices, faces)            # Checked: collides (B,), pairs (B,), pd (B,)
