@@ -356,15 +356,48 @@ def log_realistic(logger, m: dict, step: int, render_dir=None) -> None:
                                         dataformats="HWC")
 
 
-def print_realistic(r: dict | None) -> None:
+OPERATING_SETS = {"realistic": "realistic calibration meshes", "calibration": "U(Z) calibration codes",
+                  "both": "realistic calibration meshes and U(Z) calibration codes"}
+
+
+def _interval(ci) -> str:
+    return "" if not ci else f" [{ci[0]:.3f}, {ci[1]:.3f}]"
+
+
+def operating_point_line(op: dict, at0: dict) -> str:
+    """The summary's line on the detector's decision threshold: where it was set, on how many rows, what it
+    reached there (with the FNR's 95 % interval), and the U(Z) figures at logit 0 beside the last row's."""
+    cal = op["calibration"]
+    n_pos = cal.get("n_colliding")
+    size = f"{cal['n']} {OPERATING_SETS.get(op['operating_set'], op['operating_set'])}" + (
+        f" ({n_pos} colliding)" if n_pos is not None else "")
+    return (f"  (decision threshold: logit > {op['threshold']:.3f}, set to FNR <= {op['operating_fnr']:g} on {size}: "
+            f"FNR {cal['fnr']:.3f}{_interval(cal.get('fnr_ci95'))} there; the last row is at it, at logit 0: "
+            f"accuracy {at0.get('accuracy', float('nan')):.4f}, FNR {at0.get('fnr', float('nan')):.4f})")
+
+
+def operating_verdict(d: dict, target: float | None) -> str:
+    """What the realistic FNR's 95 % interval says of the operating target: above it, below it, or consistent."""
+    ci = d.get("fnr_ci95")
+    if target is None or not ci:
+        return ""
+    if ci[0] > target:
+        return f"; the operating target FNR <= {target:g} is missed"
+    if ci[1] < target:
+        return f"; under the operating target {target:g} (the threshold is more cautious than asked)"
+    return f"; consistent with the operating target {target:g}"
+
+
+def print_realistic(r: dict | None, target: float | None = None) -> None:
     if not r:
         return
     d, rt = r["detection"], r["round_trip"]
     print(f"realistic meshes (nobody trained on them; {r['n_clear']} of {r['n']} clear, |PD| >= "
           f"{r['clear_eps']:g} eps; {r['base_rate_clear']:.1%} collide):")
     if d.get("n"):
-        print(f"  detector: accuracy {d['accuracy']:.4f}, FNR {d['fnr']:.4f}, FPR {d['fpr']:.4f}, skill "
-              f"{d['skill']:.3f} (majority {d['majority_accuracy']:.4f})")
+        print(f"  detector: accuracy {d['accuracy']:.4f}, FNR {d['fnr']:.4f}{_interval(d.get('fnr_ci95'))} "
+              f"(of {d.get('n_colliding', '?')} colliding), FPR {d['fpr']:.4f}, skill {d['skill']:.3f} "
+              f"(majority {d['majority_accuracy']:.4f}){operating_verdict(d, target)}")
     agree = "n/a" if rt["agreement"] is None else f"{rt['agreement']:.1%}"
     oob = "n/a" if rt["out_of_box"] is None else f"{rt['out_of_box']:.1%}"
     print(f"  round trip keeps the exact label of {agree}; codes outside the box {oob}")
@@ -447,10 +480,7 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
               f"{r['balanced_accuracy']:.4f}")
     op = dt.get("operating_point")
     if op:
-        at0 = metrics["rounds"][-1].get("at_logit_0") or {}
-        print(f"  (decision threshold: logit > {op['threshold']:.3f}, FNR <= {op['operating_fnr']:g} on "
-              f"{op['calibration']['n']} calibration codes; the last row is at it, at logit 0: accuracy "
-              f"{at0.get('accuracy', float('nan')):.4f}, FNR {at0.get('fnr', float('nan')):.4f})")
+        print(operating_point_line(op, metrics["rounds"][-1].get("at_logit_0") or {}))
     h = metrics["handling"]
     if h is not None:
         print(f"collision handler on {h['n']} self-penetrating inputs, exact PD after handling:")
@@ -466,7 +496,7 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
                   f"resolved {c['resolved_rate']:.1%}; {c['exact_calls']} exact labels of {c['decisions']} decisions "
                   f"({c['exact_share']:.1%}; full verification {c['exact_calls_verified']}); "
                   f"{c['trusted_free_colliding']} trusted free but colliding")
-    print_realistic(metrics.get("realistic"))
+    print_realistic(metrics.get("realistic"), (dt.get("operating_point") or {}).get("operating_fnr"))
     for line in cascade_table(metrics.get("cascade")):
         print(line)
     if metrics.get("speed_accuracy"):

@@ -389,6 +389,14 @@ def test_operating_point_is_set_on_its_rows_and_folded_into_the_bias(tmp_path, w
     assert op["operating_set"] == where and op["calibration"]["fnr"] <= 0.1
     n_cal = {"realistic": int(store.split_mask().sum()), "calibration": n, "both": int(store.split_mask().sum()) + n}
     assert op["calibration"]["n"] == n_cal[where]
+    n_pos = {"realistic": int(collides[store.split_mask()].sum()), "calibration": int(collides.sum())}
+    n_pos["both"] = n_pos["realistic"] + n_pos["calibration"]
+    assert op["calibration"]["n_colliding"] == n_pos[where]
+    if where != "both":  # one set: the calibration FNR's exact interval holds it
+        lo, hi = op["calibration"]["fnr_ci95"]
+        assert lo <= op["calibration"]["fnr"] <= hi
+    else:
+        assert "fnr_ci95" not in op["calibration"]
     if where == "both":  # the mean of the two sets' FNRs is what the threshold bounds
         val = store.split_mask()
         b = before.numpy()

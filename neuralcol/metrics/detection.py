@@ -33,6 +33,29 @@ def detection_metrics(predicted: np.ndarray, actual: np.ndarray) -> dict[str, fl
             "base_rate": base, "majority_accuracy": max(base, 1.0 - base), "n": n}
 
 
+def proportion_interval(k: int, n: int, level: float = 0.95) -> tuple[float, float] | None:
+    """Two-sided Clopper-Pearson interval of a binomial proportion ``k / n`` at ``level`` (exact: it covers the true
+    proportion with probability >= ``level`` for every n); None when ``n`` is 0. An FNR's interval is that of its
+    missed colliding meshes among the colliding ones."""
+    k, n = int(k), int(n)
+    if not 0 <= k <= n or not 0.0 < float(level) < 1.0:
+        raise ValueError(f"proportion_interval: need 0 <= k <= n and 0 < level < 1 (got k={k}, n={n}, level={level})")
+    if n == 0:
+        return None
+    from scipy.stats import beta
+
+    a = 1.0 - float(level)
+    lo = 0.0 if k == 0 else float(beta.ppf(a / 2, k, n - k + 1))
+    hi = 1.0 if k == n else float(beta.ppf(1 - a / 2, k + 1, n - k))
+    return lo, hi
+
+
+def fnr_interval(predicted: np.ndarray, actual: np.ndarray, level: float = 0.95) -> tuple[float, float] | None:
+    """:func:`proportion_interval` of the FNR of boolean predictions against exact labels (None: nothing collides)."""
+    a = np.asarray(actual, bool)
+    return proportion_interval(int((~np.asarray(predicted, bool) & a).sum()), int(a.sum()), level)
+
+
 def fnr_threshold(logits: np.ndarray, collides: np.ndarray, target: float) -> float:
     """The largest logit threshold ``t`` at which ``logit > t`` misses at most ``target`` of the colliding rows:
     with k = floor(target * n_colliding), halfway between the colliding rows' k-th and (k+1)-th smallest logits

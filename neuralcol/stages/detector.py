@@ -23,7 +23,7 @@ from hydra.utils import instantiate
 from neuralcol.active.rounds import Schedule
 from neuralcol.errors import UserInputError
 from neuralcol.lit.detector import DetectorLitModule, detector_module
-from neuralcol.metrics.detection import detection_metrics, fnr_threshold, mean_fnr_threshold
+from neuralcol.metrics.detection import detection_metrics, fnr_interval, fnr_threshold, mean_fnr_threshold
 from neuralcol.metrics.tensorboard import log_round_examples
 from neuralcol.nn.detector import CollisionDetector, build_detector, net_widths, save_detector
 from neuralcol.nn.part_geometry import DetectorOnCodes, mesh_pair_features
@@ -131,8 +131,9 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
     The last round's test metrics become those at the threshold; the ones at logit 0 stay under ``at_logit_0``.
 
     Returns:
-        ``{"operating_fnr", "operating_set", "threshold", "calibration": {n, fnr, fpr, accuracy at the threshold}}``
-        (``both``: n and accuracy over the two sets pooled, fnr the mean of their two)
+        ``{"operating_fnr", "operating_set", "threshold", "calibration": {n, n_colliding, fnr, fpr, accuracy at
+        the threshold, fnr_ci95 (the FNR's 95 % Clopper-Pearson interval)}}`` (``both``: n and accuracy over the two
+        sets pooled, fnr the mean of their two, no interval)
         or None.
     """
     target = det.get("operating_fnr")
@@ -177,8 +178,12 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
     cal = detection_metrics(logit > t, y)
     if len(sets) > 1:  # both: the FNR that was bounded, the mean of the two sets'
         cal["fnr"] = float(np.mean([np.mean(lg[yy] <= t) for lg, yy in sets]))
+    if len(sets) == 1:
+        ci = fnr_interval(logit > t, y)
+        cal["fnr_ci95"] = None if ci is None else list(ci)
     return {"operating_fnr": float(target), "operating_set": where, "threshold": t,
-            "calibration": {"n": int(len(y)), **{k: cal[k] for k in ("accuracy", "fnr", "fpr")}}}
+            "calibration": {"n": int(len(y)), "n_colliding": int(y.sum()),
+                            **{k: cal[k] for k in ("accuracy", "fnr", "fpr", "fnr_ci95") if k in cal}}}
 
 
 def training_oracle(oracle: LatentOracle, det: dict, seed: int) -> tuple[LatentOracle, str]:

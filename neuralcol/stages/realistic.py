@@ -32,7 +32,7 @@ from neuralcol.data.realistic import (
 )
 from neuralcol.handler.alm import ALMSettings
 from neuralcol.handler.resolve import displacement_stats, edge_strain, resolve_meshes
-from neuralcol.metrics.detection import detection_metrics
+from neuralcol.metrics.detection import detection_metrics, fnr_interval
 from neuralcol.nn.part_geometry import code_mesh_logits
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.files import atomic_path
@@ -106,7 +106,8 @@ def _detection(pred: np.ndarray, truth: np.ndarray) -> dict:
     if len(truth) == 0:
         return {"n": 0}
     m = detection_metrics(pred, truth)
-    return {**m, "skill": _skill(m)}
+    ci = fnr_interval(pred, truth)
+    return {**m, "skill": _skill(m), "n_colliding": int(np.sum(truth)), "fnr_ci95": None if ci is None else list(ci)}
 
 
 def detector_logits(net: torch.nn.Module, z: np.ndarray, batch: int = 4096) -> np.ndarray:
