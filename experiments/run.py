@@ -46,7 +46,7 @@ from neuralcol.stages.detector import inference_us, train_detector
 from neuralcol.stages.geometry import detector_inputs, realistic_rows
 from neuralcol.stages.handler import evaluate_handler, export_handling
 from neuralcol.stages.model_size import search_model_size, validate_model_size
-from neuralcol.stages.realistic import evaluate_realistic, realistic_set
+from neuralcol.stages.realistic import calibration_meshes, evaluate_realistic, realistic_set
 from neuralcol.stages.speed import measure_speed_accuracy, speed_accuracy_table
 from neuralcol.stages.validate import validate_run_config
 from neuralcol.utils import sitting
@@ -145,10 +145,15 @@ def stage_detector(s: RunState) -> None:
         real_rows = realistic_rows(s.space, s.ds.vertices.numpy(), s.feats.features.numpy(), s.feats.acap,
                                    s.ae_report["train_index"], s.pool, cfg.detector.geometry.train_set,
                                    s.samples_dir, float(s.sample_labeler.eps))
+    cal_meshes = None
+    if cfg.detector.get("operating_fnr") is not None and cfg.detector.get("operating_set") == "realistic_calibration":
+        cal_meshes = calibration_meshes(s.ds.vertices.numpy(), s.feats.features.numpy(), s.feats.acap,
+                                        s.ae_report["val_index"], s.pool, cfg.realistic, s.samples_dir,
+                                        float(s.sample_labeler.eps))
     s.det = train_detector(s.space, s.oracle, cfg.detector, cfg.method, s.ae_report["cache_key"], int(cfg.seed),
                            cfg.paths.cache_dir, s.run_dir, s.logger,
                            round_eval=handling if cfg.handler.eval_every_round and len(s.z_user) else None,
-                           real_rows=real_rows)
+                           real_rows=real_rows, calibration_meshes=cal_meshes)
     s.t_det = time.perf_counter() - s.t_det0
 
 
@@ -357,7 +362,8 @@ def log_realistic(logger, m: dict, step: int, render_dir=None) -> None:
 
 
 OPERATING_SETS = {"realistic": "realistic calibration meshes", "calibration": "U(Z) calibration codes",
-                  "both": "realistic calibration meshes and U(Z) calibration codes"}
+                  "both": "realistic calibration meshes and U(Z) calibration codes",
+                  "realistic_calibration": "realistic calibration meshes apart from D_c"}
 
 
 def _interval(ci) -> str:

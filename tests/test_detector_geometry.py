@@ -37,6 +37,10 @@ class LinearSpace:
     def decode_vertices(self, z: torch.Tensor, idx) -> torch.Tensor:
         return self.decode(z)[:, torch.as_tensor(np.asarray(idx), dtype=torch.long)]
 
+    def encode(self, v: torch.Tensor) -> torch.Tensor:  # least squares: exact on decoded meshes
+        d = (torch.as_tensor(v, dtype=torch.float64) - self.rest_vertices).reshape(len(v), -1)
+        return torch.linalg.lstsq(self.w.T, d.T).solution.T
+
 
 def _geometry(per_part: int = 3) -> PartGeometry:
     chosen, slots, mask = choose_part_pairs(PAIRS, np.array([4.0, 3.0, 2.0, 1.0]), PARTITION, 2, per_part)
@@ -439,3 +443,54 @@ def test_full_labels_of_the_realistic_training_meshes_are_labeled_once(tmp_path)
     assert first[0].tolist() == [True, False, True] and first[2].shape == (3, 2)
     full_labels(Pool(), v + 1e-9, tmp_path)
     assert calls == [3, 3]
+
+
+def test_operating_point_on_a_realistic_calibration_set(tmp_path):
+    """detector.operating_set=realistic_calibration: the threshold is set on whole meshes apart from D_c, judged as
+    detect(mesh) judges them (their codes and their own pair features), and folded into the bias; without the set,
+    one clear error."""
+    from neuralcol.errors import UserInputError
+    from neuralcol.metrics.detection import fnr_threshold
+    from neuralcol.samples.store import CollisionRows
+    from neuralcol.stages.detector import mesh_logits, operating_point
+
+    torch.manual_seed(3)
+    rng = np.random.default_rng(3)
+    space = _strip_space()
+    det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry()).eval()
+    z = rng.uniform(-1, 1, (150, 2))
+    meshes = space.decode(torch.as_tensor(z)).numpy()
+    feats = geometry_of_codes(det.geometry, space, torch.as_tensor(z, dtype=torch.float32)).float()
+    with torch.no_grad():
+        by_codes = det(torch.as_tensor(z, dtype=torch.float32), feats).logit.double().numpy()
+    logit = mesh_logits(det, space, meshes)
+    np.testing.assert_allclose(logit, by_codes, atol=1e-4)  # a mesh is judged by its own code and features
+    collides = logit + rng.normal(scale=0.3, size=len(z)) > np.median(logit)
+    last = {"accuracy": 0.5, "fnr": 0.5}
+    test = CollisionRows(z.astype(np.float32), np.zeros(1), None, collides, None, None, None, None)
+    op = operating_point(det, space, None, {"operating_fnr": 0.1, "operating_set": "realistic_calibration"}, "key",
+                         tmp_path, test, last, None, (meshes, collides))
+    assert op["operating_set"] == "realistic_calibration"
+    assert op["threshold"] == pytest.approx(fnr_threshold(logit, collides, 0.1))
+    assert op["calibration"]["n"] == len(z) and op["calibration"]["n_colliding"] == int(collides.sum())
+    assert op["calibration"]["fnr"] <= 0.1 and len(op["calibration"]["fnr_ci95"]) == 2
+    np.testing.assert_allclose(mesh_logits(det, space, meshes), logit - op["threshold"], atol=1e-4)
+    with pytest.raises(UserInputError, match="needs the realistic calibration set"):
+        operating_point(det, space, None, {"operating_fnr": 0.1, "operating_set": "realistic_calibration"}, "key",
+                        tmp_path, test, {}, None, None)
+
+
+def test_calibration_settings_draw_another_larger_set():
+    from neuralcol.errors import UserInputError
+    from neuralcol.stages.realistic import calibration_settings
+
+    cfg = {"seed": 0, "n_acap_interp": 1500, "n_vertex_interp": 600, "n_perturbed": 600, "per_class": 150,
+           "clear_eps": 10, "calibration": {"seed_offset": 101, "scale": 4, "per_class": 1000}}
+    c = calibration_settings(cfg)
+    assert (c["seed"], c["n_acap_interp"], c["n_vertex_interp"], c["n_perturbed"], c["per_class"]) == \
+        (101, 6000, 2400, 2400, 1000)
+    assert c["clear_eps"] == 10 and cfg["seed"] == 0  # the rest as the test set's; the config itself unchanged
+    with pytest.raises(UserInputError, match="seed_offset != 0"):
+        calibration_settings({**cfg, "calibration": {"seed_offset": 0, "scale": 4, "per_class": 10}})
+    with pytest.raises(UserInputError, match="missing"):
+        calibration_settings({**cfg, "calibration": {"scale": 4}})

@@ -54,8 +54,11 @@ def test_shipped_configs_are_valid(preset):
     ("autoencoder.level2.interp_ratio=-1", "autoencoder.level2.interp_ratio=-1: must be >= 0"),
     ("autoencoder.interp_t=[1.0,0.0]", "autoencoder.interp_t"),
     ("detector.targets.training_labels=clipped", "detector.targets.training_labels='clipped': use limited or full"),
-    ("detector.operating_set=codes", "detector.operating_set='codes': use auto, calibration, realistic or both"),
+    ("detector.operating_set=codes", "detector.operating_set='codes': use auto, calibration, realistic, both or "
+                                     "realistic_calibration"),
     ("detector.inputs=latent detector.operating_set=both", "detector.operating_set='both': needs detector.inputs"),
+    ("detector.operating_set=realistic_calibration realistic.enabled=false",
+     "detector.operating_set='realistic_calibration': needs realistic.enabled=true"),
 ])
 def test_bad_settings_are_named(override, key):
     problems = config_problems(_compose(override.split()))

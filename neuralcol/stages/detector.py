@@ -111,9 +111,30 @@ def inference_us(net: CollisionDetector, z: np.ndarray, batch_sizes=(1, 4096), r
     return out
 
 
+OPERATING_SETS = ("auto", "calibration", "realistic", "both", "realistic_calibration")
+
+
+def mesh_logits(net: CollisionDetector, space, vertices: np.ndarray, batch: int = 256) -> np.ndarray:
+    """(C,) float64 logits of the detector on whole meshes (C, V, 3), as ``detect(mesh)``: their codes
+    (``space.encode``) and, for a detector over code and mesh, each mesh's own pair features."""
+    from neuralcol.nn.part_geometry import code_mesh_logits
+
+    v = torch.as_tensor(np.asarray(vertices, np.float64))
+    with torch.no_grad():
+        z = torch.cat([space.encode(b) for b in v.split(batch)]).float().cpu().numpy()
+    if getattr(net, "geometry", None) is not None:
+        return np.asarray(code_mesh_logits(net, z, np.asarray(vertices)), np.float64)
+    was = net.training
+    net.eval()
+    with torch.no_grad():
+        out = net(torch.as_tensor(z)).logit.double().numpy()
+    net.train(was)
+    return out
+
+
 def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: dict, latent_key: str,
                     cache_dir: str | Path, test: CollisionRows, last_round: dict,
-                    store: CollisionStore | None = None) -> dict | None:
+                    store: CollisionStore | None = None, calibration_meshes=None) -> dict | None:
     """Set the final detector's decision threshold (``detector.operating_fnr``; None: the paper's p > 0.5).
 
     On the labeled rows of ``detector.operating_set`` the largest logit threshold whose FNR is at most
@@ -126,6 +147,9 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
       code and mesh with ``geometry.realistic_rows``), judged by their own geometry: real meshes' operating point;
     * ``both``: the realistic validation rows and the calibration set, the **mean** of their two FNRs at most
       ``operating_fnr`` (each set weighs the same; :func:`~neuralcol.metrics.detection.mean_fnr_threshold`);
+    * ``realistic_calibration``: ``calibration_meshes`` ``(vertices (C, V, 3), collides (C,))``, a realistic set
+      apart from D_c drawn like the realistic test set
+      (:func:`~neuralcol.stages.realistic.calibration_meshes`), judged as ``detect(mesh)`` judges a mesh;
     * ``auto``: ``realistic`` where D_c holds such rows, else ``calibration``.
 
     The last round's test metrics become those at the threshold; the ones at logit 0 stay under ``at_logit_0``.
@@ -141,8 +165,8 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
         return None
     on_codes = DetectorOnCodes(net, space)
     where = str(det.get("operating_set", "calibration"))
-    if where not in ("auto", "calibration", "realistic", "both"):
-        raise UserInputError(f"detector.operating_set={where!r}; use auto, calibration, realistic or both")
+    if where not in OPERATING_SETS:
+        raise UserInputError(f"detector.operating_set={where!r}; use one of {', '.join(OPERATING_SETS)}")
     rows = None
     if store is not None and where in ("realistic", "auto", "both"):  # only the realistic validation rows are read
         rows = store.read_rows((store.column("origin") == Origin.REALISTIC) & store.split_mask())
@@ -161,6 +185,12 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
             logit = net(torch.as_tensor(rows.z), torch.as_tensor(rows.geometry)).logit.numpy()
             net.train(was)
         sets.append((logit, np.asarray(rows.collides, bool)))
+    if where == "realistic_calibration":
+        if calibration_meshes is None or len(calibration_meshes[0]) == 0:
+            raise UserInputError("detector.operating_set=realistic_calibration needs the realistic calibration set "
+                                 "(realistic.enabled=true, realistic.calibration in conf/realistic); use "
+                                 "detector.operating_set=calibration")
+        sets.append((mesh_logits(net, space, calibration_meshes[0]), np.asarray(calibration_meshes[1], bool)))
     if where in ("calibration", "both"):
         from neuralcol.stages.cascade import calibration_set
 
@@ -204,12 +234,14 @@ def training_oracle(oracle: LatentOracle, det: dict, seed: int) -> tuple[LatentO
 
 def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key: str, seed: int,
                    cache_dir: str | Path, run_dir: str | Path, logger=None, round_eval=None,
-                   real_rows: RealisticRows | None = None) -> dict:
+                   real_rows: RealisticRows | None = None, calibration_meshes=None) -> dict:
     """Run one method end to end (or resume it); returns ``{"rounds": [...], "detector": {...}}``.
 
     ``round_eval`` (``net -> dict``, the detector on codes), if given, runs after every round's test (e.g. the
     handler's evaluation). ``real_rows``: realistic training meshes (:func:`~neuralcol.stages.geometry.
-    realistic_rows`), rows of D_c in round 0 for a detector over code and mesh (``detector.inputs``, issue 41).
+    realistic_rows`), rows of D_c in round 0 for a detector over code and mesh (``detector.inputs``).
+    ``calibration_meshes``: ``(vertices, collides)`` of the realistic calibration set, for
+    ``detector.operating_set: realistic_calibration`` (:func:`operating_point`).
     """
     det, method = as_dict(det_cfg), as_dict(method_cfg)
     name = method["name"]
@@ -329,7 +361,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
         trainer.fit(module, datamodule=dm, ckpt_path=str(ckpt) if resuming else None, weights_only=True)
     final = module.net.cpu()
     operating = operating_point(final, space, oracle, det, latent_key, cache_dir, test, rounds_cb.rounds[-1],
-                                dm.store)
+                                dm.store, calibration_meshes)
     save_detector(rd.detector, final, det, method, pd_unit)
     preds = rd.test_predictions
     on_codes = DetectorOnCodes(final, space)  # (the detector itself for one that reads codes only)

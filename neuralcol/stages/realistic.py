@@ -30,6 +30,7 @@ from neuralcol.data.realistic import (
     make_realistic_meshes,
     out_of_box,
 )
+from neuralcol.errors import UserInputError
 from neuralcol.handler.alm import ALMSettings
 from neuralcol.handler.resolve import displacement_stats, edge_strain, resolve_meshes
 from neuralcol.metrics.detection import detection_metrics, fnr_interval
@@ -120,6 +121,35 @@ def detector_logits(net: torch.nn.Module, z: np.ndarray, batch: int = 4096) -> n
         out = [net(c).logit.cpu() for c in zt.split(batch)]
     net.train(was)
     return torch.cat(out).double().numpy() if out else np.zeros(0)
+
+
+def calibration_settings(cfg) -> dict:
+    """The ``realistic`` config of the calibration set: ``seed + calibration.seed_offset``, the candidate counts
+    times ``calibration.scale``, ``per_class = calibration.per_class``; everything else as the test set's."""
+    c = as_dict(cfg)
+    cal = dict(c.get("calibration") or {})
+    missing = {"seed_offset", "scale", "per_class"} - set(cal)
+    if missing:
+        raise UserInputError(f"realistic.calibration: missing {sorted(missing)}; give seed_offset, scale and per_class "
+                             "(conf/realistic/default.yaml)")
+    if not (int(cal["seed_offset"]) != 0 and float(cal["scale"]) > 0 and int(cal["per_class"]) >= 1):
+        raise UserInputError(f"realistic.calibration={cal}: need seed_offset != 0 (another draw than the test set's), "
+                             "scale > 0 and per_class >= 1")
+    out = {**c, "seed": int(c["seed"]) + int(cal["seed_offset"]), "per_class": int(cal["per_class"])}
+    for key in ("n_acap_interp", "n_vertex_interp", "n_perturbed"):
+        out[key] = int(round(float(cal["scale"]) * int(c[key])))
+    return out
+
+
+def calibration_meshes(vertices, features, acap, heldout, pool, cfg, folder: str | Path,
+                       eps: float) -> tuple[np.ndarray, np.ndarray]:
+    """The realistic calibration set's clear meshes and exact verdicts, ``(vertices (C, V, 3), collides (C,))``:
+    :func:`realistic_set` with :func:`calibration_settings` (cached as ``realistic_calibration_<key>.npz``), the
+    held-out poses and unclear cases left out (the operating point is set and judged on clear cases)."""
+    c = calibration_settings(cfg)
+    meshes, pd, _ = realistic_set(vertices, features, acap, heldout, pool, c, folder, eps, tag="realistic_calibration")
+    keep = np.isfinite(pd) & clear_mask(pd, eps, float(c["clear_eps"])) & (meshes.kind != KINDS.index("heldout"))
+    return meshes.vertices[keep], pd[keep] > 0
 
 
 def round_trip_pd(space, v: torch.Tensor, pool, desc: str = "labeling round trips") -> tuple[torch.Tensor, np.ndarray]:

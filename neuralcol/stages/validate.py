@@ -56,8 +56,13 @@ def config_problems(cfg: DictConfig) -> list[str]:
     if _get(cfg, "detector.operating_fnr") is not None:
         need("detector.operating_fnr", lambda v: 0 <= float(v) < 1, "must lie in [0, 1) (null: the paper's p > 0.5)")
     if _get(cfg, "detector.operating_set") is not None:
-        need("detector.operating_set", lambda v: v in ("auto", "calibration", "realistic", "both"),
-             "use auto, calibration, realistic or both")
+        need("detector.operating_set", lambda v: v in ("auto", "calibration", "realistic", "both",
+                                                        "realistic_calibration"),
+             "use auto, calibration, realistic, both or realistic_calibration")
+        if _get(cfg, "detector.operating_set") == "realistic_calibration" \
+                and _get(cfg, "detector.operating_fnr") is not None and not _get(cfg, "realistic.enabled"):
+            problems.append("detector.operating_set='realistic_calibration': needs realistic.enabled=true (its "
+                            "calibration set is drawn like the realistic set); use detector.operating_set=calibration")
         where = _get(cfg, "detector.operating_set")
         if where in ("realistic", "both") and _get(cfg, "detector.operating_fnr") is not None \
                 and _get(cfg, "detector.inputs") != "code_and_mesh":
