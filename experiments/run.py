@@ -370,16 +370,26 @@ def _interval(ci) -> str:
     return "" if not ci else f" [{ci[0]:.3f}, {ci[1]:.3f}]"
 
 
-def operating_point_line(op: dict, at0: dict) -> str:
-    """The summary's line on the detector's decision threshold: where it was set, on how many rows, what it
-    reached there (with the FNR's 95 % interval), and the U(Z) figures at logit 0 beside the last row's."""
+def round_rows(rounds: list[dict]) -> list[dict]:
+    """The detector's rounds on the U(Z) test set at logit 0: the last round's figures at logit 0 where the run
+    set an operating point (its top-level figures are at that point; ``at_logit_0`` keeps the others)."""
+    out = [dict(r) for r in rounds]
+    if out and out[-1].get("at_logit_0"):
+        out[-1].update(out[-1]["at_logit_0"])
+        out[-1].setdefault("balanced_accuracy", float("nan"))
+    return out
+
+
+def operating_point_line(op: dict) -> str:
+    """The summary's line on the detector's decision threshold, the point ``run.detect``, ``resolve``, the handler
+    and the realistic figures decide at: where it was set, on how many rows, what it reached there (with the FNR's
+    95 % interval)."""
     cal = op["calibration"]
     n_pos = cal.get("n_colliding")
     size = f"{cal['n']} {OPERATING_SETS.get(op['operating_set'], op['operating_set'])}" + (
         f" ({n_pos} colliding)" if n_pos is not None else "")
-    return (f"  (decision threshold: logit > {op['threshold']:.3f}, set to FNR <= {op['operating_fnr']:g} on {size}: "
-            f"FNR {cal['fnr']:.3f}{_interval(cal.get('fnr_ci95'))} there; the last row is at it, at logit 0: "
-            f"accuracy {at0.get('accuracy', float('nan')):.4f}, FNR {at0.get('fnr', float('nan')):.4f})")
+    return (f"  (the operating point, for meshes you bring: logit > {op['threshold']:.3f}, set to FNR <= "
+            f"{op['operating_fnr']:g} on {size}: FNR {cal['fnr']:.3f}{_interval(cal.get('fnr_ci95'))} there)")
 
 
 def operating_verdict(d: dict, target: float | None) -> str:
@@ -479,14 +489,18 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
         print(line)
     dt = metrics["detector"]
     print(f"U(Z): {la['uniform_collision_fraction']:.1%} of the {dt['test_set']['n']} test samples self-collide")
-    print(f"detector ({dt['method']}), stopped by {dt['stopped_by']}:")
+    op = dt.get("operating_point")
+    print(f"detector ({dt['method']}), stopped by {dt['stopped_by']}; on the U(Z) test set, at logit 0 (the paper's "
+          "protocol):")
     print("  |D_c|    accuracy  FNR     FPR     balanced")
-    for r in metrics["rounds"]:
+    for r in round_rows(metrics["rounds"]):
         print(f"  {r['dataset_size']:<8d} {r['accuracy']:.4f}    {r['fnr']:.4f}  {r['fpr']:.4f}  "
               f"{r['balanced_accuracy']:.4f}")
-    op = dt.get("operating_point")
     if op:
-        print(operating_point_line(op, metrics["rounds"][-1].get("at_logit_0") or {}))
+        r = metrics["rounds"][-1]
+        print(f"  at the operating point: {r['accuracy']:.4f}    {r['fnr']:.4f}  {r['fpr']:.4f}  "
+              f"{r['balanced_accuracy']:.4f}")
+        print(operating_point_line(op))
     h = metrics["handling"]
     if h is not None:
         print(f"collision handler on {h['n']} self-penetrating inputs, exact PD after handling:")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.stats import binomtest
 
-from experiments.run import operating_point_line, operating_verdict
+from experiments.run import operating_point_line, operating_verdict, round_rows
 from neuralcol.metrics.detection import fnr_interval, proportion_interval
 
 
@@ -34,11 +34,22 @@ def test_interval_edge_cases():
 def test_operating_point_line_names_the_set_its_size_and_the_interval():
     op = {"threshold": -1.87, "operating_fnr": 0.1, "operating_set": "realistic",
           "calibration": {"n": 72, "n_colliding": 30, "fnr": 0.1, "fnr_ci95": [0.021, 0.265]}}
-    line = operating_point_line(op, {"accuracy": 0.88, "fnr": 0.2814})
+    line = operating_point_line(op)
     assert "logit > -1.870" in line and "72 realistic calibration meshes (30 colliding)" in line
-    assert "FNR 0.100 [0.021, 0.265] there" in line and "at logit 0: accuracy 0.8800, FNR 0.2814" in line
+    assert "FNR 0.100 [0.021, 0.265] there" in line
     old = {**op, "operating_set": "calibration", "calibration": {"n": 2000, "fnr": 0.1}}  # a run before the interval
-    assert "2000 U(Z) calibration codes:" in operating_point_line(old, {})
+    assert "2000 U(Z) calibration codes:" in operating_point_line(old)
+
+
+def test_round_rows_put_the_last_round_at_logit_0():
+    keys = {"dataset_size": 10, "fpr": 0.1, "balanced_accuracy": 0.8}
+    rounds = [{**keys, "accuracy": 0.7, "fnr": 0.3},
+              {**keys, "dataset_size": 20, "accuracy": 0.8, "fnr": 0.05,  # at the operating point
+               "at_logit_0": {"accuracy": 0.88, "fnr": 0.28, "fpr": 0.04, "balanced_accuracy": 0.84}}]
+    rows = round_rows(rounds)
+    assert rows[0] == rounds[0] and (rows[1]["accuracy"], rows[1]["fnr"]) == (0.88, 0.28)
+    assert rounds[1]["accuracy"] == 0.8  # the metrics themselves unchanged
+    assert round_rows(rounds[:1]) == rounds[:1]  # no operating point: as recorded
 
 
 def test_operating_verdict_reads_the_interval():
