@@ -190,3 +190,42 @@ def test_report_wall_time_takes_the_rounds_record_where_a_killed_sitting_lost_th
     assert "| **total** | 215.0 ± 7.1 |" in table  # 70 + 140 and 220
     note = " ".join(r for r in lines if not r.startswith("|"))
     assert "1 run(s) (neuralcol_s1)" in note and "neuralcol_s0" not in note
+
+
+class _SumPool:
+    """A stand-in label pool: the 'PD' of a mesh is the sum of its coordinates, every mesh labeled."""
+
+    def label_report(self, vertices):
+        from types import SimpleNamespace
+
+        pd = vertices.reshape(len(vertices), -1).sum(1)
+        return SimpleNamespace(ok=np.ones(len(vertices), bool), labels=SimpleNamespace(pd=pd))
+
+
+class _ShiftSpace:
+    """A latent space whose round trip moves every vertex by 0.5 (codes: the meshes flattened)."""
+
+    dim = 6
+    box_lo = torch.zeros(6)
+
+    def encode(self, v):
+        return v.reshape(len(v), -1)
+
+    def decode(self, z):
+        return z.reshape(len(z), -1, 3) + 0.5
+
+
+def test_round_trips_on_a_draw_label_only_those_and_agree_with_all():
+    from neuralcol.stages.realistic import round_trip_pd, round_trip_rows
+
+    v = torch.as_tensor(np.random.default_rng(0).normal(size=(12, 2, 3)))
+    assert round_trip_rows(12, None, 0) is None and round_trip_rows(12, 12, 0) is None
+    rows = round_trip_rows(12, 5, 0)
+    assert len(rows) == 5 and np.all(np.diff(rows) > 0) and np.array_equal(rows, round_trip_rows(12, 5, 0))
+    z_all, pd_all = round_trip_pd(_ShiftSpace(), v, _SumPool())
+    z, pd = round_trip_pd(_ShiftSpace(), v, _SumPool(), rows=rows)
+    assert torch.equal(z, z_all)  # every mesh still gets its code (the detector reads them all)
+    np.testing.assert_allclose(pd[rows], pd_all[rows])
+    others = np.setdiff1d(np.arange(12), rows)
+    assert np.isnan(pd[others]).all()
+    np.testing.assert_allclose(pd_all, v.numpy().reshape(12, -1).sum(1) + 3.0)

@@ -152,13 +152,29 @@ def calibration_meshes(vertices, features, acap, heldout, pool, cfg, folder: str
     return meshes.vertices[keep], pd[keep] > 0
 
 
-def round_trip_pd(space, v: torch.Tensor, pool, desc: str = "labeling round trips") -> tuple[torch.Tensor, np.ndarray]:
+def round_trip_pd(space, v: torch.Tensor, pool, desc: str = "labeling round trips",
+                  rows: np.ndarray | None = None) -> tuple[torch.Tensor, np.ndarray]:
     """Encode the meshes ``v (N, V, 3)`` into ``space``, decode them and label the result: ``(codes (N, D) float32,
-    exact PD of the round trips (N,))``."""
+    exact PD of the round trips (N,))``. ``rows``: label only these round trips (the others' PD is NaN); None: all."""
     with torch.no_grad():
         z = torch.cat([space.encode(b) for b in v.split(256)]).float().cpu() if len(v) else torch.zeros(0, space.dim)
-        rt = torch.cat([space.decode(b.to(space.box_lo.device)).cpu() for b in z.split(256)]).double().numpy()
-    return z, pool_pd(pool, rt, desc=desc)
+        pick = z if rows is None else z[torch.as_tensor(np.asarray(rows, np.int64))]
+        rt = torch.cat([space.decode(b.to(space.box_lo.device)).cpu() for b in pick.split(256)]).double().numpy() \
+            if len(pick) else np.zeros((0, *v.shape[1:]))
+    pd = pool_pd(pool, rt, desc=desc) if len(rt) else np.zeros(0)
+    if rows is None:
+        return z, pd
+    full = np.full(len(v), np.nan)
+    full[np.asarray(rows, np.int64)] = pd
+    return z, full
+
+
+def round_trip_rows(n: int, limit, seed: int) -> np.ndarray | None:
+    """The meshes whose round trips are labeled: all (None) when ``limit`` is None or at least ``n``, else a seeded
+    sorted draw of ``limit`` of them (the round-trip figures are then on that draw)."""
+    if limit is None or int(limit) >= n:
+        return None
+    return np.sort(np.random.default_rng(seed).choice(n, int(limit), replace=False))
 
 
 def round_trip_agreement(pd_round_trip: np.ndarray, truth: np.ndarray, clear: np.ndarray) -> dict:
@@ -198,7 +214,8 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
     c = as_dict(cfg)
     t0 = time.perf_counter()
     v = torch.as_tensor(meshes.vertices, dtype=torch.float64)
-    z, pd_rt = round_trip_pd(space, v, pool)
+    rt_rows = round_trip_rows(len(v), c.get("round_trip_max"), int(c.get("seed", 0)))
+    z, pd_rt = round_trip_pd(space, v, pool, rows=rt_rows)
     logit = detector_logits(net, z.numpy())
     core = getattr(net, "detector", None)  # DetectorOnCodes around a detector that reads the mesh too (issue 41)
     logit_decoded = None
@@ -236,7 +253,7 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
     if references:
         metrics["round_trip"]["references"] = {}
         for name, ref in references.items():
-            _, pd_ref = round_trip_pd(ref, v, pool, desc=f"labeling round trips of {name}")
+            _, pd_ref = round_trip_pd(ref, v, pool, desc=f"labeling round trips of {name}", rows=rt_rows)
             metrics["round_trip"]["references"][name] = round_trip_agreement(pd_ref, truth, clear)
     arrays = {"z": z.numpy(), "logit": logit, "pd": pd, "pd_round_trip": pd_rt, "clear": clear,
               "kind": meshes.kind, "out_of_box": oob}
