@@ -117,6 +117,7 @@ OPERATING_SETS = ("auto", "calibration", "realistic", "both", "realistic_calibra
 def mesh_logits(net: CollisionDetector, space, vertices: np.ndarray, batch: int = 256) -> np.ndarray:
     """(C,) float64 logits of the detector on whole meshes (C, V, 3), as ``detect(mesh)``: their codes
     (``space.encode``) and, for a detector over code and mesh, each mesh's own pair features."""
+    from neuralcol.handler.resolve import detector_logits
     from neuralcol.nn.part_geometry import code_mesh_logits
 
     v = torch.as_tensor(np.asarray(vertices, np.float64))
@@ -124,12 +125,7 @@ def mesh_logits(net: CollisionDetector, space, vertices: np.ndarray, batch: int 
         z = torch.cat([space.encode(b) for b in v.split(batch)]).float().cpu().numpy()
     if getattr(net, "geometry", None) is not None:
         return np.asarray(code_mesh_logits(net, z, np.asarray(vertices)), np.float64)
-    was = net.training
-    net.eval()
-    with torch.no_grad():
-        out = net(torch.as_tensor(z)).logit.double().numpy()
-    net.train(was)
-    return out
+    return detector_logits(net, z)
 
 
 def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: dict, latent_key: str,

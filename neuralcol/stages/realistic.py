@@ -32,7 +32,7 @@ from neuralcol.data.realistic import (
 )
 from neuralcol.errors import UserInputError
 from neuralcol.handler.alm import ALMSettings
-from neuralcol.handler.resolve import displacement_stats, edge_strain, resolve_meshes
+from neuralcol.handler.resolve import detector_logits, displacement_stats, edge_strain, resolve_meshes
 from neuralcol.metrics.detection import detection_metrics, fnr_interval
 from neuralcol.nn.part_geometry import code_mesh_logits
 from neuralcol.utils.config import as_dict
@@ -111,16 +111,7 @@ def _detection(pred: np.ndarray, truth: np.ndarray) -> dict:
     return {**m, "skill": _skill(m), "n_colliding": int(np.sum(truth)), "fnr_ci95": None if ci is None else list(ci)}
 
 
-def detector_logits(net: torch.nn.Module, z: np.ndarray, batch: int = 4096) -> np.ndarray:
-    """(M,) float64 logits of the latent detector on codes (eval mode, no gradient; the net left as it was)."""
-    was = net.training
-    net.eval()
-    dev = next(net.parameters()).device
-    zt = torch.as_tensor(np.asarray(z, np.float32), device=dev)
-    with torch.no_grad():
-        out = [net(c).logit.cpu() for c in zt.split(batch)]
-    net.train(was)
-    return torch.cat(out).double().numpy() if out else np.zeros(0)
+
 
 
 def calibration_settings(cfg) -> dict:

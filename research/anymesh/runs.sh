@@ -7,17 +7,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 CACHE="${NEURALCOL_CACHE:-$HOME/neuralcol-cache}"
-PY=".venv/bin/python"
-OUT=outputs/anymesh/runs
-run() {  # name, overrides...
-  local name=$1; shift
-  local dir="$OUT/$name"
-  if [ -f "$dir/metrics.json" ]; then echo "$name: done"; return; fi
-  echo "$name: $(date -u +%H:%M) start"
-  NEURALCOL_DATA=../shared/data NEURALCOL_PROGRESS=lines $PY -m experiments.run "$@" paths.cache_dir="$CACHE" \
-    hydra.run.dir="$dir" > "$OUT/$name.log" 2>&1
-  echo "$name: $(date -u +%H:%M) end"
-}
-mkdir -p "$OUT"
-run cpu_proc_cloth_s0 experiment=cpu_proc_cloth seed=0
-run cpu_anny_body_s0 experiment=cpu_anny_body seed=0
+source research/run_once.sh
+run_once outputs/anymesh/runs cpu_proc_cloth_s0 experiment=cpu_proc_cloth seed=0
+run_once outputs/anymesh/runs cpu_anny_body_s0 experiment=cpu_anny_body seed=0

@@ -10,22 +10,13 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 CACHE="${NEURALCOL_CACHE:-$HOME/neuralcol-cache}"
 OUT=outputs/threshold/rule_v1
-mkdir -p "$OUT"
 GROWN=(realistic.n_acap_interp=6000 realistic.n_vertex_interp=2400 realistic.n_perturbed=2400
        realistic.per_class=1000)
 BODY=(realistic.n_acap_interp=680 realistic.n_vertex_interp=260 realistic.n_perturbed=260 realistic.per_class=300
       realistic.calibration.per_class=300)
 RULE=(detector.operating_set=realistic_calibration realistic.calibration.scale=1)
-run() {  # name, overrides...
-  local name=$1; shift
-  local dir="$OUT/$name"
-  if [ -f "$dir/metrics.json" ]; then echo "$name: done"; return; fi
-  echo "$name: $(date -u +%H:%M) start"
-  NEURALCOL_DATA=../shared/data NEURALCOL_PROGRESS=lines .venv/bin/python -m experiments.run "$@" "${RULE[@]}" \
-    paths.cache_dir="$CACHE" hydra.run.dir="$dir" > "$OUT/$name.log" 2>&1
-  echo "$name: $(date -u +%H:%M) end"
-}
-for s in 0 1 2; do run "make_run_s$s" seed=$s "${GROWN[@]}"; done
-for s in 0 1 2; do run "scape_s$s" experiment=cpu_scape seed=$s "${GROWN[@]}"; done
-for s in 0 1 2; do run "proc_cloth_s$s" experiment=cpu_proc_cloth seed=$s "${GROWN[@]}"; done
-for s in 0 1 2; do run "anny_body_s$s" experiment=cpu_anny_body seed=$s "${BODY[@]}"; done
+source research/run_once.sh
+for s in 0 1 2; do run_once "$OUT" "make_run_s$s" seed=$s "${GROWN[@]}" "${RULE[@]}"; done
+for s in 0 1 2; do run_once "$OUT" "scape_s$s" experiment=cpu_scape seed=$s "${GROWN[@]}" "${RULE[@]}"; done
+for s in 0 1 2; do run_once "$OUT" "proc_cloth_s$s" experiment=cpu_proc_cloth seed=$s "${GROWN[@]}" "${RULE[@]}"; done
+for s in 0 1 2; do run_once "$OUT" "anny_body_s$s" experiment=cpu_anny_body seed=$s "${BODY[@]}" "${RULE[@]}"; done
