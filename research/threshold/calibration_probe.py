@@ -31,25 +31,17 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
-    """Two-sided ``level`` interval of a binomial proportion k / n."""
-    from scipy.stats import beta
-
-    a = 1.0 - level
-    lo = 0.0 if k == 0 else float(beta.ppf(a / 2, k, n - k + 1))
-    hi = 1.0 if k == n else float(beta.ppf(1 - a / 2, k + 1, n - k))
-    return lo, hi
-
-
 def score(logit: np.ndarray, y: np.ndarray, t: float) -> dict:
-    """FNR (with interval), FPR, accuracy, majority and skill of ``logit > t`` against ``y``."""
+    """FNR (with its exact 95 % interval), FPR, accuracy, majority and skill of ``logit > t`` against ``y``."""
+    from neuralcol.metrics.detection import proportion_interval
+
     pred = logit > t
     pos = y.sum()
     miss = int((~pred & y).sum())
     acc = float((pred == y).mean())
     maj = float(max(y.mean(), 1 - y.mean()))
     return {"n": int(len(y)), "n_colliding": int(pos), "fnr": miss / max(pos, 1),
-            "fnr_ci95": clopper_pearson(miss, int(pos)), "fpr": float((pred & ~y).sum() / max((~y).sum(), 1)),
+            "fnr_ci95": proportion_interval(miss, int(pos)), "fpr": float((pred & ~y).sum() / max((~y).sum(), 1)),
             "accuracy": acc, "majority": maj, "skill": (acc - maj) / (1 - maj) if maj < 1 else float("nan")}
 
 
