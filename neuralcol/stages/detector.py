@@ -39,7 +39,7 @@ from neuralcol.stages.geometry import (
     detector_inputs,
     load_run_geometry,
 )
-from neuralcol.stages.validate import METHODS  # one list of method names
+from neuralcol.stages.validate import METHODS, OPERATING_SETS  # one list of each
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.files import atomic_path, write_json_atomic
 from neuralcol.utils.progress import trainer_progress
@@ -109,9 +109,6 @@ def inference_us(net: CollisionDetector, z: np.ndarray, batch_sizes=(1, 4096), r
             out[f"batch_{int(b)}"] = 1e6 * float(np.median(times)) / int(b)
     out["threads"] = torch.get_num_threads()
     return out
-
-
-OPERATING_SETS = ("auto", "calibration", "realistic", "both", "realistic_calibration")
 
 
 def mesh_logits(net: CollisionDetector, space, vertices: np.ndarray, batch: int = 256) -> np.ndarray:

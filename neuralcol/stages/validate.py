@@ -12,6 +12,7 @@ from neuralcol.collision.backends import labeler_problems
 from neuralcol.errors import UserInputError
 
 METHODS = ("supv", "supv_bd", "active", "active_paper")
+OPERATING_SETS = ("auto", "calibration", "realistic", "both", "realistic_calibration")  # detector.operating_set
 POOL_EXECUTORS = ("local", "dask")  # labeling.pool.executor (neuralcol.collision.pool.EXECUTORS)
 
 
@@ -56,9 +57,8 @@ def config_problems(cfg: DictConfig) -> list[str]:
     if _get(cfg, "detector.operating_fnr") is not None:
         need("detector.operating_fnr", lambda v: 0 <= float(v) < 1, "must lie in [0, 1) (null: the paper's p > 0.5)")
     if _get(cfg, "detector.operating_set") is not None:
-        need("detector.operating_set", lambda v: v in ("auto", "calibration", "realistic", "both",
-                                                        "realistic_calibration"),
-             "use auto, calibration, realistic, both or realistic_calibration")
+        need("detector.operating_set", lambda v: v in OPERATING_SETS,
+             f"use {', '.join(OPERATING_SETS[:-1])} or {OPERATING_SETS[-1]}")
         if _get(cfg, "detector.operating_set") == "realistic_calibration" \
                 and _get(cfg, "detector.operating_fnr") is not None and not _get(cfg, "realistic.enabled"):
             problems.append("detector.operating_set='realistic_calibration': needs realistic.enabled=true (its "
