@@ -20,7 +20,7 @@ from omegaconf import OmegaConf
 from neuralcol.api import load_run
 from neuralcol.handler.contact_repair import repair_from_config
 from neuralcol.handler.resolve import alm_settings
-from neuralcol.stages.realistic import evaluate_realistic, realistic_set
+from neuralcol.stages.realistic import evaluate_realistic, evaluation_limit, realistic_set
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,7 +47,8 @@ def run_realistic_set(run, rcfg):
     pool = run.label_pool()
     folder = ctx.samples_dir(run.labeler)
     meshes, pd, _ = realistic_set(ds.vertices.numpy(), feats.features.numpy(), feats.acap,
-                                  run.space.meta["val_index"], pool, rcfg, folder, float(run.labeler.eps))
+                                  run.space.meta["val_index"], pool, rcfg, folder, float(run.labeler.eps),
+                                  clearance_limit=evaluation_limit(rcfg, float(run.labeler.eps)))
     return ds, feats, pool, folder, meshes, pd
 
 

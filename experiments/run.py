@@ -46,7 +46,7 @@ from neuralcol.stages.detector import inference_us, train_detector
 from neuralcol.stages.geometry import detector_inputs, realistic_rows
 from neuralcol.stages.handler import evaluate_handler, export_handling
 from neuralcol.stages.model_size import search_model_size, validate_model_size
-from neuralcol.stages.realistic import calibration_meshes, evaluate_realistic, realistic_set
+from neuralcol.stages.realistic import calibration_meshes, evaluate_realistic, evaluation_limit, realistic_set
 from neuralcol.stages.speed import measure_speed_accuracy, speed_accuracy_table
 from neuralcol.stages.validate import validate_run_config
 from neuralcol.utils import sitting
@@ -182,7 +182,8 @@ def stage_realistic(s: RunState) -> None:
     t_r = time.perf_counter()
     meshes, pd_real, real_cached = realistic_set(
         s.ds.vertices.numpy(), s.feats.features.numpy(), s.feats.acap, s.ae_report["val_index"], s.pool,
-        cfg.realistic, s.samples_dir, float(s.sample_labeler.eps))
+        cfg.realistic, s.samples_dir, float(s.sample_labeler.eps),
+        clearance_limit=evaluation_limit(cfg.realistic, float(s.sample_labeler.eps)))
     m, s.real_arrays = evaluate_realistic(
         s.space, s.detector(), meshes, pd_real, s.pool, float(s.sample_labeler.eps), cfg.realistic, s.settings,
         list(cfg.handler.verify_margins), int(cfg.handler.batch_size), repair=repair_from_config(cfg),

@@ -195,10 +195,12 @@ def test_report_wall_time_takes_the_rounds_record_where_a_killed_sitting_lost_th
 class _SumPool:
     """A stand-in label pool: the 'PD' of a mesh is the sum of its coordinates, every mesh labeled."""
 
-    def label_report(self, vertices):
+    def label_report(self, vertices, clearance_limit=None):
         from types import SimpleNamespace
 
         pd = vertices.reshape(len(vertices), -1).sum(1)
+        if clearance_limit is not None:
+            pd = np.maximum(pd, -clearance_limit)
         return SimpleNamespace(ok=np.ones(len(vertices), bool), labels=SimpleNamespace(pd=pd))
 
 
@@ -229,3 +231,40 @@ def test_round_trips_on_a_draw_label_only_those_and_agree_with_all():
     others = np.setdiff1d(np.arange(12), rows)
     assert np.isnan(pd[others]).all()
     np.testing.assert_allclose(pd_all, v.numpy().reshape(12, -1).sum(1) + 3.0)
+
+
+def _curl(v: np.ndarray, theta: float, length: float = 2.0) -> np.ndarray:
+    """The tube rolled along a circle through ``theta`` radians: past 2 pi its ends pass through each other."""
+    r = length / theta
+    phi = theta * v[:, 2] / length
+    return np.stack([r - (r - v[:, 0]) * np.cos(phi), v[:, 1], (r - v[:, 0]) * np.sin(phi)], -1)
+
+
+def test_clearance_limited_labels_keep_the_selection_and_every_verdict(tmp_path):
+    """label_clearance=clear labels free meshes only up to clear_eps * eps: the same meshes are kept, colliding
+    meshes keep their PD bit for bit, free ones read exactly -limit (clear either way)."""
+    from neuralcol.collision.labeler import ExactLabeler
+    from neuralcol.collision.pool import LabelPool
+    from neuralcol.stages.realistic import evaluation_limit, realistic_set
+
+    v0, f = make_tube(n_rings=16, n_around=8)
+    poses = np.stack([_curl(v0, a) for a in (0.5, 2.0, 4.0, 5.5)])
+    acap = ACAP(poses[0], f)
+    feats = acap.encode(torch.as_tensor(poses)).numpy()
+    lab = ExactLabeler(f, poses[0], boundary_eps=1e-4)
+    cfg = dict(seed=0, n_acap_interp=40, n_vertex_interp=20, n_perturbed=20, t_range=[-0.6, 1.6], perturb_scale=0.8,
+               clear_eps=10, per_class=None, label_clearance="clear")
+    limit = evaluation_limit(cfg, lab.eps)
+    assert limit == 10 * lab.eps
+    full, pd_full, _ = realistic_set(poses, feats, acap, [3], LabelPool(lab), cfg, tmp_path, lab.eps)
+    fast, pd_fast, cached = realistic_set(poses, feats, acap, [3], LabelPool(lab), cfg, tmp_path, lab.eps,
+                                          clearance_limit=limit)
+    assert not cached  # its own cache file: the stored PD differs
+    assert (pd_full > 0).sum() >= 5 and (pd_full < -limit).sum() >= 5  # both classes are there
+    np.testing.assert_array_equal(fast.vertices, full.vertices)
+    np.testing.assert_array_equal(pd_fast[pd_full > 0], pd_full[pd_full > 0])
+    np.testing.assert_array_equal(pd_fast[pd_full < -limit], -limit)
+    assert evaluation_limit({**cfg, "label_clearance": "full"}, lab.eps) is None
+    assert evaluation_limit({**cfg, "clear_eps": 0}, lab.eps) is None
+    with pytest.raises(Exception, match="realistic.label_clearance='some'"):
+        evaluation_limit({**cfg, "label_clearance": "some"}, lab.eps)

@@ -59,6 +59,7 @@ def test_shipped_configs_are_valid(preset):
     ("detector.inputs=latent detector.operating_set=both", "detector.operating_set='both': needs detector.inputs"),
     ("detector.operating_set=realistic_calibration realistic.enabled=false",
      "detector.operating_set='realistic_calibration': needs realistic.enabled=true"),
+    ("realistic.label_clearance=some", "realistic.label_clearance='some': use clear or full"),
 ])
 def test_bad_settings_are_named(override, key):
     problems = config_problems(_compose(override.split()))

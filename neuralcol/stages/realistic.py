@@ -35,6 +35,7 @@ from neuralcol.handler.alm import ALMSettings
 from neuralcol.handler.resolve import detector_logits, displacement_stats, edge_strain, resolve_meshes
 from neuralcol.metrics.detection import detection_metrics, fnr_interval
 from neuralcol.nn.part_geometry import code_mesh_logits
+from neuralcol.stages.validate import LABEL_CLEARANCES
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.files import atomic_path
 
@@ -42,18 +43,35 @@ BUILD_KEYS = ("seed", "n_acap_interp", "n_vertex_interp", "n_perturbed", "t_rang
               "per_class")
 
 
-def pool_pd(pool, vertices: np.ndarray, desc: str | None = None) -> np.ndarray:
-    """Exact PD (n,) of meshes through a label pool; NaN where the labeler failed."""
+def pool_pd(pool, vertices: np.ndarray, desc: str | None = None, clearance_limit: float | None = None) -> np.ndarray:
+    """Exact PD (n,) of meshes through a label pool; NaN where the labeler failed. ``clearance_limit``: free meshes'
+    clearances measured only up to this length (PD >= -limit; :meth:`~neuralcol.collision.labeler.ExactLabeler.
+    label_limited`); None: in full."""
     if len(vertices) == 0:
         return np.zeros(0)
     if desc is not None:
         pool.desc = desc
-    report = pool.label_report(np.asarray(vertices, np.float64))
+    report = pool.label_report(np.asarray(vertices, np.float64), clearance_limit=clearance_limit)
     return np.where(report.ok, report.labels.pd, np.nan)
 
 
+def evaluation_limit(cfg, eps: float) -> float | None:
+    """The clearance the realistic test and calibration sets (and their round trips) are labeled to:
+    ``clear_eps * eps`` with ``label_clearance: clear``, the most that the clear-case rule and the verdicts read
+    (a free mesh farther than that is clear either way; colliding meshes' PD is unchanged); None with ``full``
+    or ``clear_eps: 0``. Labeling free meshes to the whole ``clearance_cap`` costs 1.4x (SCAPE) to 2.5x (anny_body)
+    as much (docs/results.md, "Where the operating threshold lands")."""
+    c = as_dict(cfg)
+    how = str(c.get("label_clearance", "full"))
+    if how not in LABEL_CLEARANCES:
+        raise UserInputError(f"realistic.label_clearance={how!r}; use {' or '.join(LABEL_CLEARANCES)}")
+    limit = float(c["clear_eps"]) * float(eps)
+    return limit if how == "clear" and limit > 0 else None
+
+
 def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Path, eps: float,
-                  tag: str = "realistic", sources=None) -> tuple[RealisticMeshes, np.ndarray, bool]:
+                  tag: str = "realistic", sources=None,
+                  clearance_limit: float | None = None) -> tuple[RealisticMeshes, np.ndarray, bool]:
     """The realistic meshes of a data set and their exact PD, built and labeled once, then read from the cache.
 
     The candidates (``n_acap_interp`` + ``n_vertex_interp`` + ``n_perturbed`` and the held-out meshes) are
@@ -69,6 +87,8 @@ def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Pa
         eps: the labeler's boundary width (``clear_eps`` is in its units).
         tag: the cache file's prefix. sources: the data set rows ``vertices`` were taken from (recorded in the
             cache key; None: all).
+        clearance_limit: the candidates' clearances are measured up to this length (:func:`evaluation_limit`;
+            recorded in the cache key); None: in full.
 
     Returns:
         (meshes, pd (M,) float64 with NaN where the labeler failed, read from the cache).
@@ -79,6 +99,8 @@ def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Pa
     settings["eps"] = float(eps)
     if sources is not None:
         settings["sources"] = [int(i) for i in np.asarray(sources).reshape(-1)]
+    if clearance_limit is not None:
+        settings["clearance_limit"] = float(clearance_limit)
     key = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
     path = Path(folder) / f"{tag}_{key}.npz"
     if path.is_file():
@@ -87,7 +109,7 @@ def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Pa
     meshes = make_realistic_meshes(vertices, features, acap, heldout, int(c["n_acap_interp"]),
                                    int(c["n_vertex_interp"]), int(c["n_perturbed"]), tuple(c["t_range"]),
                                    float(c["perturb_scale"]), int(c["seed"]))
-    pd = pool_pd(pool, meshes.vertices, desc="labeling realistic candidates")
+    pd = pool_pd(pool, meshes.vertices, desc="labeling realistic candidates", clearance_limit=clearance_limit)
     keep = balanced_selection(meshes.kind, pd, eps, float(c["clear_eps"]),  # clear_eps 0: every labeled mesh
                               None if c["per_class"] is None else int(c["per_class"]), int(c["seed"]))
     meshes, pd = RealisticMeshes(*(a[keep] for a in meshes)), pd[keep]
@@ -138,21 +160,24 @@ def calibration_meshes(vertices, features, acap, heldout, pool, cfg, folder: str
     :func:`realistic_set` with :func:`calibration_settings` (cached as ``realistic_calibration_<key>.npz``), the
     held-out poses and unclear cases left out (the operating point is set and judged on clear cases)."""
     c = calibration_settings(cfg)
-    meshes, pd, _ = realistic_set(vertices, features, acap, heldout, pool, c, folder, eps, tag="realistic_calibration")
+    meshes, pd, _ = realistic_set(vertices, features, acap, heldout, pool, c, folder, eps, tag="realistic_calibration",
+                                  clearance_limit=evaluation_limit(c, eps))
     keep = np.isfinite(pd) & clear_mask(pd, eps, float(c["clear_eps"])) & (meshes.kind != KINDS.index("heldout"))
     return meshes.vertices[keep], pd[keep] > 0
 
 
 def round_trip_pd(space, v: torch.Tensor, pool, desc: str = "labeling round trips",
-                  rows: np.ndarray | None = None) -> tuple[torch.Tensor, np.ndarray]:
+                  rows: np.ndarray | None = None,
+                  clearance_limit: float | None = None) -> tuple[torch.Tensor, np.ndarray]:
     """Encode the meshes ``v (N, V, 3)`` into ``space``, decode them and label the result: ``(codes (N, D) float32,
-    exact PD of the round trips (N,))``. ``rows``: label only these round trips (the others' PD is NaN); None: all."""
+    exact PD of the round trips (N,))``. ``rows``: label only these round trips (the others' PD is NaN); None: all.
+    ``clearance_limit``: as :func:`pool_pd`."""
     with torch.no_grad():
         z = torch.cat([space.encode(b) for b in v.split(256)]).float().cpu() if len(v) else torch.zeros(0, space.dim)
         pick = z if rows is None else z[torch.as_tensor(np.asarray(rows, np.int64))]
         rt = torch.cat([space.decode(b.to(space.box_lo.device)).cpu() for b in pick.split(256)]).double().numpy() \
             if len(pick) else np.zeros((0, *v.shape[1:]))
-    pd = pool_pd(pool, rt, desc=desc) if len(rt) else np.zeros(0)
+    pd = pool_pd(pool, rt, desc=desc, clearance_limit=clearance_limit) if len(rt) else np.zeros(0)
     if rows is None:
         return z, pd
     full = np.full(len(v), np.nan)
@@ -206,7 +231,8 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
     t0 = time.perf_counter()
     v = torch.as_tensor(meshes.vertices, dtype=torch.float64)
     rt_rows = round_trip_rows(len(v), c.get("round_trip_max"), int(c.get("seed", 0)))
-    z, pd_rt = round_trip_pd(space, v, pool, rows=rt_rows)
+    limit = evaluation_limit(c, eps)
+    z, pd_rt = round_trip_pd(space, v, pool, rows=rt_rows, clearance_limit=limit)
     logit = detector_logits(net, z.numpy())
     core = getattr(net, "detector", None)  # DetectorOnCodes around a detector that reads the mesh too (issue 41)
     logit_decoded = None
@@ -244,7 +270,8 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
     if references:
         metrics["round_trip"]["references"] = {}
         for name, ref in references.items():
-            _, pd_ref = round_trip_pd(ref, v, pool, desc=f"labeling round trips of {name}", rows=rt_rows)
+            _, pd_ref = round_trip_pd(ref, v, pool, desc=f"labeling round trips of {name}", rows=rt_rows,
+                                      clearance_limit=limit)
             metrics["round_trip"]["references"][name] = round_trip_agreement(pd_ref, truth, clear)
     arrays = {"z": z.numpy(), "logit": logit, "pd": pd, "pd_round_trip": pd_rt, "clear": clear,
               "kind": meshes.kind, "out_of_box": oob}

@@ -13,6 +13,7 @@ from neuralcol.errors import UserInputError
 
 METHODS = ("supv", "supv_bd", "active", "active_paper")
 OPERATING_SETS = ("auto", "calibration", "realistic", "both", "realistic_calibration")  # detector.operating_set
+LABEL_CLEARANCES = ("clear", "full")  # realistic.label_clearance
 POOL_EXECUTORS = ("local", "dask")  # labeling.pool.executor (neuralcol.collision.pool.EXECUTORS)
 
 
@@ -56,6 +57,8 @@ def config_problems(cfg: DictConfig) -> list[str]:
         need("detector.inputs", lambda v: v in ("latent", "code_and_mesh"), "use latent or code_and_mesh")
     if _get(cfg, "detector.operating_fnr") is not None:
         need("detector.operating_fnr", lambda v: 0 <= float(v) < 1, "must lie in [0, 1) (null: the paper's p > 0.5)")
+    if _get(cfg, "realistic.label_clearance") is not None:
+        need("realistic.label_clearance", lambda v: v in LABEL_CLEARANCES, f"use {' or '.join(LABEL_CLEARANCES)}")
     if _get(cfg, "detector.operating_set") is not None:
         need("detector.operating_set", lambda v: v in OPERATING_SETS,
              f"use {', '.join(OPERATING_SETS[:-1])} or {OPERATING_SETS[-1]}")

@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Criterion (d) of the operating threshold's rule v1 (docs/results.md, "Where the operating threshold lands"):
+# `make run` (seed 0) with rule v1's settings from an empty cache, wall time and peak memory by /usr/bin/time -v.
+# Run it alone on the machine: anything else running beside it inflates the figure. The numba kernels' own cache
+# (neuralcol/collision/kernels/__pycache__) stays warm, as after `make install`'s first run.
+# Output: outputs/threshold/budget_<label>/ (the run), budget_<label>.time (time -v), budget_<label>.log.
+#   research/threshold/budget.sh [LABEL] [EXTRA OVERRIDE...]
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+label=${1:-rule_v1}
+shift || true
+out=outputs/threshold
+cache=$(mktemp -d "${TMPDIR:-/tmp}/neuralcol-budget.XXXXXX")
+trap 'rm -rf "$cache"' EXIT
+mkdir -p "$out"
+rm -rf "$out/budget_$label"
+RULE=(realistic.n_acap_interp=6000 realistic.n_vertex_interp=2400 realistic.n_perturbed=2400 realistic.per_class=1000
+      detector.operating_set=realistic_calibration realistic.calibration.scale=1)
+NEURALCOL_DATA=../shared/data NEURALCOL_PROGRESS=lines /usr/bin/time -v -o "$out/budget_$label.time" \
+  .venv/bin/python -m experiments.run seed=0 "${RULE[@]}" "$@" paths.cache_dir="$cache" \
+  hydra.run.dir="$out/budget_$label" > "$out/budget_$label.log" 2>&1
+grep -E "Elapsed|Maximum resident" "$out/budget_$label.time"
+.venv/bin/python -c "import json,sys; s=json.load(open(sys.argv[1]))['sittings']; print(s['minutes'], 'min;', {k: round(v) for k, v in s['stage_seconds'].items()})" "$out/budget_$label/metrics.json"
