@@ -1,15 +1,24 @@
 #!/usr/bin/env bash
 # make run (seed 0) with torch's portable CPU kernels (ATEN_CPU_CAPABILITY=default) beside the machine's own
-# (research/exact_labels/remeasure.sh's make_run_s0, AVX512 on this project's machine): does a run on another
-# kernel set land inside the README's 3-seed band? Read with:
+# (AVX512 on this project's machine): does a run on another kernel set land inside the README's 3-seed band?
+#   research/threshold/kernel_set.sh            today's settings, beside research/exact_labels/remeasure.sh's make_run_s0
+#   research/threshold/kernel_set.sh rule_v1    rule v1's settings, beside research/threshold/rule_v1.sh's make_run_s0
+# Read with:
 #   .venv/bin/python -m research.exact_labels.summary outputs/threshold/kernel_default_s0
 # Rerun the same command to go on (a finished run is skipped). Cache: $NEURALCOL_CACHE (default $HOME/neuralcol-cache).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 CACHE="${NEURALCOL_CACHE:-$HOME/neuralcol-cache}"
-dir=outputs/threshold/kernel_default_s0
+name=kernel_default_s0
+extra=()
+if [ "${1:-}" = rule_v1 ]; then
+  name=kernel_default_rule_v1_s0
+  extra=(realistic.n_acap_interp=6000 realistic.n_vertex_interp=2400 realistic.n_perturbed=2400 realistic.per_class=1000
+         detector.operating_set=realistic_calibration realistic.calibration.scale=1)
+fi
+dir=outputs/threshold/$name
 mkdir -p outputs/threshold
-if [ -f "$dir/metrics.json" ]; then echo "kernel_default_s0: done"; exit 0; fi
+if [ -f "$dir/metrics.json" ]; then echo "$name: done"; exit 0; fi
 ATEN_CPU_CAPABILITY=default NEURALCOL_DATA=../shared/data NEURALCOL_PROGRESS=lines .venv/bin/python -m experiments.run \
-  seed=0 paths.cache_dir="$CACHE" hydra.run.dir="$dir" > outputs/threshold/kernel_default_s0.log 2>&1
-echo "kernel_default_s0: done"
+  seed=0 "${extra[@]}" paths.cache_dir="$CACHE" hydra.run.dir="$dir" > "outputs/threshold/$name.log" 2>&1
+echo "$name: done"

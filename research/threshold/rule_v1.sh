@@ -6,6 +6,7 @@
 # test set). Today's rule on the same test sets is scored offline from the same runs
 # (research/threshold/rule_v1_summary.py). Rerun the same command to go on: a finished run (metrics.json) is
 # skipped, an unfinished one resumes in its directory. Cache: $NEURALCOL_CACHE (default $HOME/neuralcol-cache).
+#   research/threshold/rule_v1.sh [make_run|scape|proc_cloth|anny_body ...]   (default: all four, in this order)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 CACHE="${NEURALCOL_CACHE:-$HOME/neuralcol-cache}"
@@ -16,7 +17,16 @@ BODY=(realistic.n_acap_interp=680 realistic.n_vertex_interp=260 realistic.n_pert
       realistic.calibration.per_class=300)
 RULE=(detector.operating_set=realistic_calibration realistic.calibration.scale=1)
 source research/run_once.sh
-for s in 0 1 2; do run_once "$OUT" "make_run_s$s" seed=$s "${GROWN[@]}" "${RULE[@]}"; done
-for s in 0 1 2; do run_once "$OUT" "scape_s$s" experiment=cpu_scape seed=$s "${GROWN[@]}" "${RULE[@]}"; done
-for s in 0 1 2; do run_once "$OUT" "proc_cloth_s$s" experiment=cpu_proc_cloth seed=$s "${GROWN[@]}" "${RULE[@]}"; done
-for s in 0 1 2; do run_once "$OUT" "anny_body_s$s" experiment=cpu_anny_body seed=$s "${BODY[@]}" "${RULE[@]}"; done
+sets=("$@")
+[ ${#sets[@]} -gt 0 ] || sets=(make_run scape proc_cloth anny_body)
+for d in "${sets[@]}"; do
+  for s in 0 1 2; do
+    case $d in
+      make_run) run_once "$OUT" "make_run_s$s" seed=$s "${GROWN[@]}" "${RULE[@]}" ;;
+      scape) run_once "$OUT" "scape_s$s" experiment=cpu_scape seed=$s "${GROWN[@]}" "${RULE[@]}" ;;
+      proc_cloth) run_once "$OUT" "proc_cloth_s$s" experiment=cpu_proc_cloth seed=$s "${GROWN[@]}" "${RULE[@]}" ;;
+      anny_body) run_once "$OUT" "anny_body_s$s" experiment=cpu_anny_body seed=$s "${BODY[@]}" "${RULE[@]}" ;;
+      *) echo "rule_v1.sh: unknown data set '$d'; use make_run, scape, proc_cloth or anny_body" >&2; exit 2 ;;
+    esac
+  done
+done
