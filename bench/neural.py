@@ -20,7 +20,7 @@ FAST_KEYS = {"compiled": "float32", "compiled_bf16": "bfloat16",
 
 def concat_forward(net, z_all: torch.Tensor) -> torch.Tensor:
     """The collision probability with CP applied to the concatenation [S_0, part_i], K times per sample: the
-    detector's forward before stop 23 (docs/model_size.md; ``python -m research.detector_forward`` has more)."""
+    detector's earlier forward (docs/model_size.md; ``python -m research.detector_forward`` has more)."""
     parts, cse_in = net.inputs(z_all)
     s0 = net.cse(cse_in)
     s = net.cp(torch.cat([s0[:, None, :].expand(-1, net.n_components, -1), parts], dim=-1))[..., 0]
@@ -55,7 +55,7 @@ def measure(ctx: BenchContext) -> dict:
         b4096 = repeat(lambda: net(z).logit, reps * 3, warmup=2)
     out["detector_us_per_sample_b1"] = summarize(b1, 1e6)
     out["detector_us_per_sample_b4096"] = summarize(b4096, 1e6 / len(z))
-    # side by side, interleaved: the forward before stop 23 (CP on the concatenation, one block of 4096) and today's
+    # side by side, interleaved: the earlier forward (CP on the concatenation, one block of 4096) and today's
     # (first CP layer split, row blocks of CollisionDetector.inference_block)
     old_t, new_t = [], []
     with torch.no_grad():

@@ -1,7 +1,7 @@
-"""``training_labels``: samples per second of D_c's labels for training as issue 42 makes them (clearances capped at
-the targets' floor, codes decoded in the pool's workers) against the path before it (codes decoded here, full
-labels on the workers), one 2-worker LabelPool, interleaved, on uniform codes of a finished SCAPE run's latent
-space; and whether verdicts, subsets and clipped targets are identical."""
+"""``training_labels``: samples per second of D_c's labels for training as the detector stage makes them
+(clearances capped at the targets' floor, codes decoded in the pool's workers) against the path before it (codes
+decoded here, full labels on the workers), one 2-worker LabelPool, interleaved, on uniform codes of a finished
+SCAPE run's latent space; and whether verdicts, subsets and clipped targets are identical."""
 
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def measure(ctx: BenchContext) -> dict:
         train(z[:64])  # workers started and warm outside the timing
         out = {}
 
-        def before():  # issue 41's path: decode here, full labels on the workers
+        def before():  # the earlier path: decode here, full labels on the workers
             out["full"] = pool.label_report(full.decode(z)).labels
 
         def now():
@@ -57,7 +57,7 @@ def measure(ctx: BenchContext) -> dict:
                                                                           pd_floor=floor)))
     identical = bool(np.array_equal(a.collides, b.collides) and np.array_equal(sub_a, b.subset) and same_targets)
     ctx.notes["training_labels"] = (
-        f"{n} uniform codes of {where(run_dir)} (SCAPE), issue 41's path (decoded here, full labels; today's "
+        f"{n} uniform codes of {where(run_dir)} (SCAPE), the earlier path (decoded here, full labels; today's "
         f"labeler) against labels for training (clearances capped at {-floor:g} caps, decoded in the workers), "
         f"one 2-worker LabelPool, "
         f"interleaved; verdicts, subsets and clipped targets identical: {identical}; colliding share "

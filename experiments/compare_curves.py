@@ -25,7 +25,7 @@ from neuralcol.utils.cli import report_user_errors
 def curve_records(spec: str) -> tuple[str, dict]:
     """``DIR:VARIANT`` -> (variant, {(size, seed): record}) from ``DIR/diagnosis.json``."""
     if ":" not in spec:
-        raise UserInputError(f"{spec!r}: expected DIR:VARIANT, e.g. outputs/stop25/lr_scape:constant")
+        raise UserInputError(f"{spec!r}: expected DIR:VARIANT, e.g. outputs/lr_scape:constant")
     folder, variant = spec.rsplit(":", 1)
     path = Path(folder) / "diagnosis.json"
     if not path.exists():

@@ -4,7 +4,7 @@ Compares the ``metrics.json`` of two run directories value by value, leaving out
 where a value came from (keys naming seconds, ms, µs, threads, cache hits or resumption), and the arrays of
 ``test_predictions.npz``, ``realistic_predictions.npz`` and the detector's weights bit for bit. Prints the count
 of identical values, every difference, and keys found in only one of the two; exits 1 when anything differs.
-Used to check that a refactor keeps a run's numbers to the last digit (issue 28: ``make run`` and
+Used to check that a refactor keeps a run's numbers to the last digit (e.g. ``make run`` and
 ``experiment=cpu_scape``, docs/results.md).
 """
 
@@ -27,7 +27,7 @@ TIMING = ("seconds", "_s", "ms_per", "_us", "batch_", "threads", "from_cache", "
 
 
 def _is_timing(path: str) -> bool:
-    # "sittings": wall time per stage and sitting (max_minutes, issue 42)
+    # "sittings": wall time per stage and sitting (max_minutes)
     return any(t in path.split(".")[-1] for t in TIMING) or "inference_us" in path or path.startswith("sittings.")
 
 

@@ -1,13 +1,13 @@
 """The latent space and what stands on it, run by run: ``python -m experiments.latent_table RUN [RUN ...]``.
 
-Reads each run directory's ``metrics.json`` and prints one Markdown row per run (issue 40): the latent space's
+Reads each run directory's ``metrics.json`` and prints one Markdown row per run: the latent space's
 kind, its train / held-out vertex error beside the better PCA reference's held-out error, the share of U(Z) that
 collides, the detector on U(Z) (accuracy, majority, skill, FNR), the realistic set (accuracy, FNR, skill, round-trip
 agreement, codes outside the box), the handler on U(Z) (detector only) and ``resolve`` on realistic meshes
 (detector-guided, verified). ``--group`` adds mean ± std rows over runs whose directory names differ only in a
 trailing ``_s<seed>``.
 
-    python -m experiments.latent_table outputs/issue40/hand_* --group
+    python -m experiments.latent_table outputs/latent/hand_* --group
 """
 
 from __future__ import annotations

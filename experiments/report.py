@@ -24,7 +24,7 @@ or any mix), groups the runs by data set and method (seeds are pooled: mean ± s
   in a given directory marked), accuracy against cumulative seconds per method, and where each method fails:
   detector accuracy by exact-PD bin and recall by sub-domain of the test rows, handler success by PD bin of its
   inputs, mean ± std over seeds;
-* ``speed_accuracy_<data set>.png`` and a table (runs with ``metrics["speed_accuracy"]``, issue 29): samples per
+* ``speed_accuracy_<data set>.png`` and a table (runs with ``metrics["speed_accuracy"]``): samples per
   second of every method (exact labeler, MeshLab, FCL, the detectors, the cascade's targets) against accuracy and
   FNR, medians over the runs;
 * ``report.json``: the aggregated numbers.

@@ -78,7 +78,7 @@ def stage_data(s: RunState) -> None:
     t0 = time.perf_counter()
     s.feats = s.ctx.features
     t_encode = time.perf_counter() - t0
-    if s.cfg.get("model_size") is not None and s.cfg.model_size.mode == "auto":  # choose the sizes first (issue 17)
+    if s.cfg.get("model_size") is not None and s.cfg.model_size.mode == "auto":  # choose the sizes first
         s.cfg, s.size_doc = search_model_size(s.cfg, s.run_dir, s.ds, s.feats, run, train_or_load_latent_space)
         seed_everything(s.cfg.seed if s.cfg.seed is not None else None)  # as if the sizes had been given
         s.ctx = s.ctx.reconfigured(s.cfg)
@@ -118,9 +118,9 @@ def stage_open_pool(s: RunState) -> None:
     s.sample_labeler = s.ctx.sample_labeler()
     s.t_det0 = time.perf_counter()  # (the detector's stage time counts the box fit and the test set too)
     s.settings = alm_settings(s.cfg.handler.alm)
-    s.ref_spaces, s.ref_errors = s.ctx.references  # PCA at the same |Z_all| (issue 40)
+    s.ref_spaces, s.ref_errors = s.ctx.references  # PCA at the same |Z_all|
     s.pool = s.pool_stack.enter_context(s.ctx.pool(s.sample_labeler))
-    s.box_fit = s.ctx.fit_box(s.pool, s.sample_labeler)  # issue 40: the box scaled until U(Z) is worth sampling
+    s.box_fit = s.ctx.fit_box(s.pool, s.sample_labeler)  # the box scaled until U(Z) is worth sampling
     s.ae_report = s.ctx.latent_space().report  # a fitted box has its own cache key
     s.oracle = s.ctx.oracle(s.pool)
     s.box_probe = box_stage(s.space, s.ref_spaces, s.pool, s.cfg, s.box_fit)
@@ -133,7 +133,7 @@ def stage_open_pool(s: RunState) -> None:
 
 def stage_detector(s: RunState) -> None:
     """The neural collision detector, trained by the configured method round by round (``detector.inputs``:
-    on the codes, or on code and mesh with the realistic training meshes among its rows, issue 41)."""
+    on the codes, or on code and mesh with the realistic training meshes among its rows)."""
     cfg = s.cfg
     s.logger = stage_logger(s.run_dir, f"detector_{cfg.method.name}")
 
@@ -158,7 +158,7 @@ def stage_detector(s: RunState) -> None:
 
 
 def stage_calibration(s: RunState) -> None:
-    """The certified cascade's bands (issue 29), one per target FNR, chosen on its calibration set."""
+    """The certified cascade's bands, one per target FNR, chosen on its calibration set."""
     if s.cfg.detector.get("cascade") is not None and s.cfg.detector.cascade.enabled:
         s.bands, s.calib_collides = calibrate(s.detector(), s.oracle, s.cfg.detector, s.ae_report["cache_key"],
                                               s.cfg.paths.cache_dir, s.rd.cascade)
@@ -175,7 +175,7 @@ def stage_handler(s: RunState) -> None:
 
 
 def stage_realistic(s: RunState) -> None:
-    """The realistic set (issue 27): meshes nobody trained on, labeled exactly, judged beside U(Z)."""
+    """The realistic set: meshes nobody trained on, labeled exactly, judged beside U(Z)."""
     cfg = s.cfg
     if not cfg.realistic.enabled:
         return
@@ -245,7 +245,7 @@ def stage_summary(s: RunState) -> None:
 
 
 def stage_speed(s: RunState) -> None:
-    """Throughput against accuracy of every method (issue 29); last, as it reads the other stages' metrics."""
+    """Throughput against accuracy of every method; last, as it reads the other stages' metrics."""
     sa_cfg, cfg = s.cfg.get("speed_accuracy"), s.cfg
     if sa_cfg is None or not sa_cfg.enabled:
         return

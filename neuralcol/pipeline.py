@@ -123,8 +123,8 @@ class RunContext:
         return self._latent
 
     def fit_box(self, pool: LabelPool, labeler) -> dict | None:
-        """Fit the latent space's box to ``box_fit.band`` with labels from ``pool`` (issue 40,
-        :mod:`~neuralcol.stages.box_fit`); the probe is ``box_check``'s (size and seed). Afterwards the latent stage
+        """Fit the latent space's box to ``box_fit.band`` with labels from ``pool``
+        (:mod:`~neuralcol.stages.box_fit`); the probe is ``box_check``'s (size and seed). Afterwards the latent stage
         holds the fitted space under its own cache key (saved there, so its test set, D_c and
         :class:`~neuralcol.api.TrainedRun` never meet the paper's box) and ``report["box_fit"]``. The fit is cached
         beside the paper box's labeled samples. Returns the fit, or None when ``box_fit`` is off.
@@ -165,7 +165,7 @@ class RunContext:
 
     @cached_property
     def references(self) -> tuple[dict, dict]:
-        """The latent space's PCA references (issue 40): ``({name: PCALatentSpace}, {name: errors})`` for PCA of the
+        """The latent space's PCA references: ``({name: PCALatentSpace}, {name: errors})`` for PCA of the
         vertex positions and of the ACAP features at the same |Z_all| and training meshes
         (:func:`~neuralcol.stages.autoencoder.reference_spaces`)."""
         stage = self.latent_space()

@@ -8,7 +8,7 @@ Run directory (one run)::
 
     .hydra/config.yaml          the composed config (Hydra)
     metrics.json                every stage's results; written last, so its presence marks a finished run
-    detector.pt                 the final detector (runs before issue 41 may hold a mesh_detector.pt: not read)
+    detector.pt                 the final detector (older runs may hold a mesh_detector.pt: not read)
     detector_rounds.json        round records (rewritten each round; ``finished`` when done)
     sittings.json               one record per invocation (max_minutes): wall time per stage, where it stopped
     dc.h5                       D_c, the labeled training samples  checkpoints/detector.ckpt  resume state
@@ -16,7 +16,7 @@ Run directory (one run)::
     test_predictions.npz        the detector on the U(Z) test set  realistic_predictions.npz  on the realistic set
     cascade.npz                 the detector's logits on the cascade's calibration set and their exact labels
     handling/  examples/  round_examples/  subdomains.png  speed_accuracy.png  tensorboard/<stage>/
-    round_detectors/round_<k>.pt  each round's detector as tested (detector.pt's format, at logit 0; issue 42)
+    round_detectors/round_<k>.pt  each round's detector as tested (detector.pt's format, at logit 0)
     realistic_renders/          resolve on the realistic set, before and after, one input per kind of collision
     package.json  latent_space.pt   a packed run only (neuralcol.api.package: pretrained/<name>/)
 
@@ -52,13 +52,13 @@ class RunDir:
     resumed_in = _File("resumed_in.txt")  # an interrupted run that was continued elsewhere names that directory
     detector = _File("detector.pt")
     detector_rounds = _File("detector_rounds.json")
-    sittings = _File("sittings.json")  # one record per invocation: stages' wall times, where it stopped (issue 42)
+    sittings = _File("sittings.json")  # one record per invocation: stages' wall times, where it stopped
     dc = _File("dc.h5")
-    geometry = _File("geometry.npz")  # the contact pairs a detector over code and mesh reads (issue 41)
+    geometry = _File("geometry.npz")  # the contact pairs a detector over code and mesh reads
     checkpoint = _File("checkpoints", "detector.ckpt")
     test_predictions = _File("test_predictions.npz")
     realistic_predictions = _File("realistic_predictions.npz")
-    realistic_renders = _File("realistic_renders")  # resolve before/after, one colliding input per kind (issue 43)
+    realistic_renders = _File("realistic_renders")  # resolve before/after, one colliding input per kind
     cascade = _File("cascade.npz")  # calibration logits + labels of the certified cascade (neuralcol.stages.cascade)
     handling = _File("handling")
     examples = _File("examples")

@@ -90,7 +90,7 @@ def test_the_separate_mesh_detector_options_say_it_was_folded(trained):
     default) still works."""
     z = _codes(trained, 3, 2)
     verts = trained.decode(z)
-    folded = r"the separate mesh detector \(mesh_detector.pt\) was folded into the run's detector in issue 41: " \
+    folded = r"the separate mesh detector \(mesh_detector.pt\) was folded into the run's detector: " \
              r"train with detector.inputs=code_and_mesh \(the default\)"
     for inputs in ("mesh", "auto"):
         with pytest.raises(UserInputError, match=f"inputs='{inputs}': {folded}") as e:
@@ -99,7 +99,7 @@ def test_the_separate_mesh_detector_options_say_it_was_folded(trained):
     with pytest.raises(UserInputError, match=f"constraint='mesh': {folded}"):
         trained.resolve(verts[:1], verify=False, constraint="mesh")
     torch.testing.assert_close(trained.detect(verts, inputs="latent").logit, trained.detect(verts).logit)
-    with pytest.raises(UserInputError, match="inputs='pixels': the option was removed in issue 41"):
+    with pytest.raises(UserInputError, match="inputs='pixels': the option was removed \\(the run's one detector"):
         trained.detect(z, inputs="pixels")
 
 

@@ -2,11 +2,11 @@
 
 A run is the dict of its ``metrics.json`` (with detector rounds) plus ``_path`` (its directory) and ``_seed``.
 Every round's figures are read at logit 0, the decision each round is tested at and the paper's: a run with an
-operating point (``detector.operating_fnr``, issue 41) records its last round there and keeps logit 0's figures under
+operating point (``detector.operating_fnr``) records its last round there and keeps logit 0's figures under
 ``at_logit_0``; :func:`find_runs` swaps them, and keeps the operating point's under the round's ``operating_point``
 (accuracy, fnr, fpr, balanced_accuracy, threshold), so the curves do not mix two thresholds and Table 3 compares
 like with like (the operating point is a row of its own).
-Beside it: ``test_predictions.npz`` and ``handling/per_input.npz`` (written since issue 17; for the handler, the
+Beside it: ``test_predictions.npz`` and ``handling/per_input.npz`` (absent in older runs; for the handler, the
 older ``handling/handling.npz`` holds the same two arrays), ``.hydra/config.yaml`` for the seed and detector
 sizes of older runs. In any directory given to the report, ``model_size.json``::
 
@@ -142,7 +142,7 @@ def size_config(run: dict) -> dict:
     net = net or {}
     return {"n_components": k, "level2_dim": int(run["latent"]["dim"]) // k - 1,
             "state_dim": net.get("state_dim"), "hidden": net.get("hidden"),
-            "detector_width": float(net.get("width", 1.0))}  # detector.net.width (issue 17; 1 before it)
+            "detector_width": float(net.get("width", 1.0))}  # detector.net.width (1 in runs older than it)
 
 
 def config_label(cfg: dict) -> str:

@@ -1,4 +1,4 @@
-"""The methods side by side at equal data set sizes (issue 42's "active ≥ supv_bd ≥ supv at equal size").
+"""The methods side by side at equal data set sizes (the claim "active ≥ supv_bd ≥ supv at equal size").
 
 The baselines are re-trained at a few sizes and the active methods stop at their own (the elbow), so the sizes of
 two methods seldom coincide: at every size one of them ran, each method's mean accuracy over seeds is read there,

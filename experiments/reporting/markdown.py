@@ -29,7 +29,7 @@ from experiments.reporting.equal_size import equal_size_markdown
 HANDLING_KEYS = (("success_rate", "success"), ("resolved_rate", "resolved"), ("mean_pd_reduction", "PD reduction"),
                  ("mean_embedding_diff", "‖Z − Z_user‖"), ("seconds_per_mesh", "ms / mesh"))
 # (title, path into metrics, percent? ("small": a percentage to two significant digits, for values far under
-# 0.01 %)); the separate mesh detector's entries of runs before issue 41
+# 0.01 %)); the separate mesh detector's entries of older runs
 # (metrics "mesh_detector", realistic "detection_mesh") are not reported
 REALISTIC_ROWS = (
     ("real meshes: accuracy, detector", ("realistic", "detection", "accuracy"), True),
@@ -191,7 +191,7 @@ def bench_markdown(bench: dict) -> list[str]:
 
 
 def latent_markdown(runs: list[dict]) -> list[str]:
-    """The latent space beside its PCA references (issue 40): held-out error, the share of a probe of each box that
+    """The latent space beside its PCA references: held-out error, the share of a probe of each box that
     collides and how often each round trip keeps a realistic mesh's label, mean over the runs that report them."""
     runs = [r for r in runs if (r.get("autoencoder") or {}).get("references")]
     if not runs:
@@ -227,7 +227,7 @@ def latent_markdown(runs: list[dict]) -> list[str]:
 
 
 def realistic_rows(runs: list[dict], names: list[str]) -> list[str]:
-    """The "real meshes" block of the Table 3 layout (issue 27): the realistic set's clear cases, mean ± std over
+    """The "real meshes" block of the Table 3 layout: the realistic set's clear cases, mean ± std over
     the runs of each method; nothing when no run has a realistic evaluation."""
     if not any(r.get("realistic") for r in runs):
         return []
@@ -354,7 +354,7 @@ def rounds_seconds(run: dict) -> float | None:
 
 def sitting_times(run: dict) -> tuple[dict, float, bool]:
     """A run's wall seconds per stage, its total minutes, and whether the detector's figure came from its rounds.
-    Before stop 57 a sitting killed inside the detector's rounds (the session's end, not ``max_minutes``) lost that
+    In older runs a sitting killed inside the detector's rounds (the session's end, not ``max_minutes``) lost that
     stage's time from ``sittings.json``, though its finished rounds kept theirs: the detector stage is the larger of
     the two, and the total grows by the difference."""
     stages = dict(run["sittings"]["stage_seconds"])
@@ -393,7 +393,7 @@ def wall_time_markdown(runs: list[dict], names: list[str]) -> list[str]:
     note = "" if not from_rounds else (
         f" The detector's time of {len(from_rounds)} run(s) ({', '.join(from_rounds)}) is its rounds' own record "
         "(labeling + training + projection, running totals kept with each round): a sitting of theirs was killed "
-        "inside the rounds before `sittings.json` kept a running stage's time (stop 57), so the sittings' figure "
+        "inside the rounds before `sittings.json` kept a running stage's time, so the sittings' figure "
         "lacks it; their totals grow by the difference.")
     return lines + ["", "Stages under half a minute in every run are left out of the rows (not of the total); a "
                     "stage near 0 took its result from the cache (`paths.cache_dir`), paid by an earlier run. A "

@@ -176,7 +176,7 @@ def plot_pareto(points: list[dict], path: Path) -> None:
                         ax.scatter([p[key]], [p["accuracy_mean"]], s=220, marker="*", color="gold", edgecolor="k",
                                    zorder=5, label="chosen")
                 if not have:
-                    _no_data(ax, "no run records it\n(metrics.json before issue 17)")
+                    _no_data(ax, "no run records it\n(older metrics.json)")
                 else:
                     ax.set_xscale("log")
                     from matplotlib.ticker import NullFormatter
@@ -235,7 +235,7 @@ def plot_failures(groups: dict, path: Path) -> None:
                     ax.set_xticks(np.arange(len(names)), names, fontsize=7, rotation=15)
                     ax.legend(fontsize=7)
                 else:
-                    _no_data(ax, "no per-run files\n(runs before issue 17)")
+                    _no_data(ax, "no per-run files\n(older runs)")
                 ax.set_ylim(0, 1.05)
                 _style(ax, "deepest sub-domain" if measure == "recall" else f"exact PD (units of {unit:.3g})", ylabel,
                        ds, grid="y")

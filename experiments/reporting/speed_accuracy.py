@@ -1,4 +1,4 @@
-"""Speed against accuracy (issue 29): the chart of one run (``speed_accuracy.png`` in its run directory) and the
+"""Speed against accuracy: the chart of one run (``speed_accuracy.png`` in its run directory) and the
 report's section (per data set a table and ``speed_accuracy_<data set>.png``, medians over the runs).
 
 A point is one entry of ``metrics["speed_accuracy"]["points"]`` (:mod:`neuralcol.stages.speed`): ``method``,
@@ -17,7 +17,7 @@ from experiments.reporting.discover import by_dataset, method
 from experiments.reporting.markdown import row
 
 STYLES = {"exact": ("k", "s"), "meshlab": ("C1", "D"), "fcl": ("C2", "^"), "latent detector": ("C0", "o"),
-          "mesh detector": ("C4", "v"),  # (the separate mesh detector: points of runs before issue 41)
+          "mesh detector": ("C4", "v"),  # (the separate mesh detector: points of older runs)
           "code+mesh detector": ("C5", "o"), "cascade": ("C3", "P")}  # method -> (colour, marker)
 # methods whose accuracy depends on the trained detector (the report keeps them apart per training method)
 TRAINED = ("latent detector", "mesh detector", "code+mesh detector", "cascade")
@@ -134,7 +134,7 @@ def speed_accuracy_groups(runs: list[dict]) -> tuple[dict[str, list[dict]], list
         have = [r for r in ds_runs if (r.get("speed_accuracy") or {}).get("points")]
         if len(have) < len(ds_runs):
             notes.append(f"{len(ds_runs) - len(have)} of {len(ds_runs)} {ds} runs have no speed_accuracy (finished "
-                         "before issue 29, or speed_accuracy.enabled=false) and are left out of its chart")
+                         "before the stage existed, or speed_accuracy.enabled=false) and are left out of its chart")
         if not have:
             continue
         several = len({method(r) for r in have}) > 1

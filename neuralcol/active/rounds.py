@@ -12,7 +12,7 @@ acquiring resumes with that acquisition (``on_fit_start``, before Lightning buil
 optimizer side in ``on_train_start``, after it restores the optimizer), not by training the round again.
 Inside a round, the training state is saved at an epoch's end every ``checkpoint_minutes`` (the best validation
 epoch's weights with it): a run killed there, or stopped by its sitting's budget, goes on from that epoch instead
-of training the round again from its start (a round trains 30-60 min at the paper's sizes on 2 cores; issue 42).
+of training the round again from its start (a round trains 30-60 min at the paper's sizes on 2 cores).
 """
 
 from __future__ import annotations
@@ -164,9 +164,9 @@ class RoundCallback(L.Callback):
         self.stopped_by, self.elbow = state["stopped_by"], state["elbow"]
         self.seconds = dict(state["seconds"])
         self.store_len = state["store_len"]
-        self.pending_acquisition = bool(state.get("pending_acquisition", False))  # absent before issue 42
+        self.pending_acquisition = bool(state.get("pending_acquisition", False))  # absent in older checkpoints
         self.dm.batch_size = int(state["batch_size"])
-        best = state.get("best")  # absent before mid-round checkpoints (issue 42)
+        best = state.get("best")  # absent before mid-round checkpoints
         self._best = None if best is None else (float(best["accuracy"]), int(best["epoch"]), dict(best["weights"]))
         if self.acquire is not None:
             self.acquire.load_state_dict(state["acquire"])

@@ -64,9 +64,10 @@ class CascadeMixin:
             path = RunDir(self.run_dir).cascade
             if not path.is_file():
                 raise UserInputError(
-                    f"{path}: missing; this run has no calibration set for the certified cascade (it predates issue "
-                    "29 or ran with detector.cascade.enabled=false). Fix: run.calibrate() labels one and writes it "
-                    "into the run directory (once), or run the run's command again with detector.cascade.enabled=true")
+                    f"{path}: missing; this run has no calibration set for the certified cascade (it predates "
+                    "the cascade or ran with detector.cascade.enabled=false). Fix: run.calibrate() labels one and "
+                    "writes it into the run directory (once), or run the run's command again with "
+                    "detector.cascade.enabled=true")
             self._calibration = load_calibration(path)
         return self._calibration
 

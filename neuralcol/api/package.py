@@ -1,4 +1,4 @@
-"""A finished run packed into one small folder that loads anywhere (issue 42: the shipped SCAPE model).
+"""A finished run packed into one small folder that loads anywhere (e.g. the shipped SCAPE model).
 
 A run directory reads its latent space from the cache (``paths.cache_dir``) and holds D_c, checkpoints and
 pictures beside what :func:`~neuralcol.load_run` needs. :func:`pack_run` copies only what detection, exact

@@ -25,8 +25,8 @@ class ResolveMixin:
             raise UserInputError(f"{self.run_dir}/.hydra/config.yaml: {e}") from e
 
     def resolve_sequence(self, frames, rate: float | None = None, progress: bool = True, **resolve_kwargs):
-        """Resolve a motion: every frame freed, the corrections varying smoothly in time (issue 43;
-        :mod:`neuralcol.handler.sequence`): each frame is warm-started from the previous frame's correction and
+        """Resolve a motion: every frame freed, the corrections varying smoothly in time
+        (:mod:`neuralcol.handler.sequence`): each frame is warm-started from the previous frame's correction and
         resolved (:meth:`resolve`, one mesh, with ``resolve_kwargs``) only where that start collides; corrections
         decay where no longer needed and ramp in before a collision, at most ``rate`` per vertex and frame. Free
         frames outside a correction's ramp come back bit for bit (a motion whose frames are all free: unchanged, at
@@ -108,7 +108,7 @@ class ResolveMixin:
                 next margin, then, for meshes, the contact repair). ``exact``, ``free`` and ``exact_share`` of the
                 result say which verdicts were exact. The inputs' ``pd_input`` / ``pd_before`` are measured as
                 without it.
-            constraint: removed in issue 41 with the separate mesh detector (folded into the run's detector; the
+            constraint: removed with the separate mesh detector (folded into the run's detector; the
                 handler's constraint is always the run's detector on the code and, over code and mesh, on its
                 decoded geometry): ``constraint="mesh"`` raises a
                 UserInputError saying so (``"latent"`` is accepted from old callers).

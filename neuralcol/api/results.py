@@ -10,20 +10,20 @@ import torch
 from neuralcol.errors import UserInputError
 
 OBJECTIVES = ("latent", "cartesian")
-FOLDED_MESH_DETECTOR = ("the separate mesh detector (mesh_detector.pt) was folded into the run's detector in issue 41: "
+FOLDED_MESH_DETECTOR = ("the separate mesh detector (mesh_detector.pt) was folded into the run's detector: "
                         "train with detector.inputs=code_and_mesh (the default), whose detector judges a mesh by its "
                         "own geometry")
 
 
 def check_removed_choice(name: str, value, folded: tuple[str, ...]) -> None:
-    """An old caller's ``inputs=`` / ``constraint=`` (removed in issue 41): None and ``"latent"`` (the run's
+    """An old caller's ``inputs=`` / ``constraint=`` (both removed): None and ``"latent"`` (the run's
     detector, what they always meant) pass; ``folded`` (the separate mesh detector) raise
     :data:`FOLDED_MESH_DETECTOR`, anything else that the option is gone."""
     if value is None or value == "latent":
         return
     if value in folded:
         raise UserInputError(f"{name}={value!r}: {FOLDED_MESH_DETECTOR}")
-    raise UserInputError(f"{name}={value!r}: the option was removed in issue 41 (the run's one detector judges "
+    raise UserInputError(f"{name}={value!r}: the option was removed (the run's one detector judges "
                          "meshes and codes); leave it out")
 
 

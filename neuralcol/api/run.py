@@ -63,7 +63,7 @@ def load_run(run_dir: str | Path, device: str | torch.device = "cpu", workers: i
     retrain = "restore it from a copy of the run, or run the run's command again in a new directory"
     net, blob = _read_model_file(rd.detector, load_detector, retrain)
     pd_unit = _pd_unit(blob, metrics, rd.detector, rd.metrics)
-    # (a mesh_detector.pt of a run older than issue 41, the separate mesh detector, is not read)
+    # (a mesh_detector.pt of an older run, the separate mesh detector, is not read)
     space = _read_model_file(space_path, LatentSpace.load, f"delete {space_path.parent} and run the same command "
                              "again to rebuild it")
     if net.latent_dim != space.dim:
@@ -196,11 +196,11 @@ class TrainedRun(CascadeMixin, ResolveMixin):
                certify: float | None = None, *, inputs: str | None = None) -> Detection:
         """The run's detector (``detector.pt``) on meshes (B, V, 3) or codes (B, D), in batches of ``batch_size``.
 
-        A run whose detector reads code and mesh (``detector.inputs=code_and_mesh``, the default since issue 41)
+        A run whose detector reads code and mesh (``detector.inputs=code_and_mesh``, the default)
         judges a given mesh by its own contact-pair features beside its code, and a code by its decoded mesh's; the
         paper's detector (``detector.inputs=latent``) reads the code only, so on a mesh it judges the autoencoder's
         round trip, not the mesh. ``inputs`` is gone with the separate mesh detector (folded into the run's
-        detector in issue 41): ``inputs="mesh"`` or ``"auto"`` raises a UserInputError saying so (``"latent"``, the
+        detector): ``inputs="mesh"`` or ``"auto"`` raises a UserInputError saying so (``"latent"``, the
         run's detector, is accepted from old callers).
 
         ``fast``: None (the eager float32 network, as in training and in the reported metrics), ``"float32"``
@@ -210,7 +210,7 @@ class TrainedRun(CascadeMixin, ResolveMixin):
         ~1.9x, no label flipped on SCAPE's test sets). The first call with a ``fast`` form compiles it (seconds);
         :class:`~neuralcol.nn.fast_inference.FastDetector` and docs/model_size.md have the measurements. Meshes given
         to a detector over code and mesh run the compiled mesh path (``FastDetector.on_meshes``): on SCAPE meshes
-        59 µs per mesh against 104 eager, 110x the exact full label (stop 48, ``python -m research.mesh_speed``).
+        59 µs per mesh against 104 eager, 110x the exact full label (``python -m research.mesh_speed``).
 
         ``certify``: None, or a target FNR in [0, 1): the certified cascade (docs/cascade.md). The band ``[lo, hi)``
         of that target (:meth:`band`, from the run's calibration set) decides which rows the exact labeler judges:
@@ -232,7 +232,7 @@ class TrainedRun(CascadeMixin, ResolveMixin):
             raise
         if is_mesh and not bool(torch.isfinite(z).all()):  # a non-finite coordinate reaches every code it enters
             self._vertices(x)  # (raises, naming it)
-        # issue 41: a detector over code and mesh judges a mesh by its own geometry, not by its round trip's: the
+        # a detector over code and mesh judges a mesh by its own geometry, not by its round trip's: the
         # vertices its pair features read, float32, in blocks small enough to stay in cache
         geometry = self.detector.geometry if is_mesh else None
         v = None if geometry is None else mesh[:, geometry.vertex_index.cpu()].to(self.device, torch.float32)

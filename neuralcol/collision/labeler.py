@@ -45,7 +45,7 @@ diagonal of the rest mesh the labeler is built with):
   ``PD = max_i PD_i``. So ``PD > 0`` iff the mesh self-collides; PD is the deepest penetration when it
   does and minus the (capped) clearance when it does not; both sides go to 0 at the contact, and a part
   that is not involved in a collision keeps its clearance. Units: length, like the vertices.
-* **Clearance limit** (labels for training, issue 42). ``label(v, clearance_limit=L)`` caps clearances at
+* **Clearance limit** (labels for training). ``label(v, clearance_limit=L)`` caps clearances at
   ``min(cap, L)`` instead of ``cap``: ``PD_i = max(PD_i, -L)``, everything else unchanged (verdict, counted
   pairs, positive PD_i bit for bit). The detector's targets are clipped to a band of the cap (``detector.targets``),
   so with ``L`` at the band's edge the clipped targets are bit for bit those of the full label, while the passes

@@ -1,4 +1,4 @@
-"""Realistic meshes: the kind of meshes a user brings, for evaluation beside U(Z) (issue 27).
+"""Realistic meshes: the kind of meshes a user brings, for evaluation beside U(Z).
 
 The paper measures everything on U(Z), codes drawn from the latent box and decoded. A user brings meshes
 instead. This module builds, per data set, meshes nobody trained on, each derived from the data set's own

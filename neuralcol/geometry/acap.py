@@ -233,7 +233,7 @@ class ACAP:
         keep = np.setdiff1d(np.arange(n_vert), [self.root])
         self._keep = torch.as_tensor(keep)
         self._lap_pinned = lap[keep][:, keep].tocsc()  # kept to factorise again after unpickling (SuperLU is not
-        self._lu = splu(self._lap_pinned)  # picklable; a label pool's workers decode with a pickled copy, issue 42)
+        self._lu = splu(self._lap_pinned)  # picklable; a label pool's workers decode with a pickled copy)
         self._rest_centroid = q.mean(0)
         # decode right-hand side: b_i += w (T_i + T_j)/2 (q_i - q_j), b_j -= same, per undirected edge
         self._edge_i = torch.as_tensor(self.edges[:, 0])
@@ -445,7 +445,7 @@ class ACAP:
     def _decode_no_grad(self, f: torch.Tensor) -> torch.Tensor:
         """:meth:`decode` without a graph, on the CPU: the right-hand side in one numba pass per mesh (float64,
         :func:`~neuralcol.geometry.acap_kernels.decode_rhs`), then the same factorised solve; returns the input's
-        dtype. Equal to the differentiable path to round-off, ~4x faster on SCAPE (issue 29)."""
+        dtype. Equal to the differentiable path to round-off, ~4x faster on SCAPE."""
         from neuralcol.geometry.acap_kernels import decode_rhs
 
         fn = np.ascontiguousarray(f.detach().numpy(), dtype=np.float64)

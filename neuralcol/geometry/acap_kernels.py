@@ -2,7 +2,7 @@
 the Poisson system's right-hand side, in one pass per mesh in float64. The same formulas as
 :func:`~neuralcol.geometry.acap.rotvec_to_matrix`, :func:`~neuralcol.geometry.acap.sym_from_entries` and
 :meth:`~neuralcol.geometry.acap.ACAP.decode` (equal to round-off, ~1e-14 of the mesh size on SCAPE), about 4x
-faster on one thread than the batched torch ops (issue 29)."""
+faster on one thread than the batched torch ops."""
 
 from __future__ import annotations
 

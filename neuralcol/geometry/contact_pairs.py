@@ -1,4 +1,4 @@
-"""Contact-pair features of a mesh: what a detector that reads the mesh sees (issue 27; since issue 41 the one
+"""Contact-pair features of a mesh: what a detector that reads the mesh sees (the one
 detector over code and mesh, :mod:`neuralcol.nn.part_geometry`, which chooses the pairs per sub-domain).
 
 A self-collision is two pieces of surface that are far apart on the mesh coming close and passing through each

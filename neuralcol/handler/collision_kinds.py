@@ -1,4 +1,4 @@
-"""What kind of self-intersection a mesh has, so that resolve's failures are reported by kind (issue 43).
+"""What kind of self-intersection a mesh has, so that resolve's failures are reported by kind.
 
 * ``deep``: a part inside another part's volume: the exact labeler's flood fill finds an enclosed penetrating
   region with a vertex deeper than ``deep_edges`` mean edge lengths

@@ -3,7 +3,7 @@
 The neural handler moves a code (or a mesh) to where the *detector* calls it free; where the exact labeler
 still finds intersecting triangles (the detector erred, or the correction transferred to the user's mesh left
 a small overlap), this pushes the two surfaces of every intersecting triangle pair apart and asks the labeler
-again (issue 27: ``resolve`` returns the user's mesh collision-free by the exact label, moving as little of it
+again (``resolve`` returns the user's mesh collision-free by the exact label, moving as little of it
 as it can). It is our addition, never part of the paper's detector-guided numbers: results report it as its
 own stage.
 
@@ -162,7 +162,7 @@ class RepairSettings:
     max_step: float = 0.002     # no vertex moves more than this fraction of the diagonal per iteration
     first: bool = True          # resolve: repair the input first, the neural handler only for what it leaves
     method: str = "contact_untangle"  # contact: this module's push; untangle: region push + contour
-                                # minimisation; contact_untangle (default, issue 43 rule v2): the push, and untangle
+                                # minimisation; contact_untangle (default, rule v2): the push, and untangle
                                 # (from the input) where it fails
     untangle: dict | None = None  # settings of neuralcol.handler.untangle.UntangleSettings (None: its defaults)
     retry: dict | None = field(default_factory=lambda: {"anchor": 0.01})  # untangle settings changed for a third
@@ -170,7 +170,7 @@ class RepairSettings:
     # third attempt). Default: a wider field (docs/real_meshes.md "A wider untangle where both repairs fail")
     shrink_steps: int = 0       # resolve: bisection steps shrinking the neural path's correction (0: off)
     cap_steps: int = 6          # resolve: bisection steps capping a freed result's displacement (0: off; the
-                                # default since stop 53, rule v10 met)
+                                # default, rule v10 met)
 
     def __post_init__(self):
         if self.delta <= 0 or self.smooth_steps < 0 or self.max_iter < 0 or self.max_step <= 0:

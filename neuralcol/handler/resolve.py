@@ -117,7 +117,7 @@ def detector_logits(net: torch.nn.Module, z: torch.Tensor, batch: int = 4096) ->
 
 
 class CertifiedLabel:
-    """The verdict on handled codes through the certified cascade (issue 29; :mod:`neuralcol.metrics.cascade`):
+    """The verdict on handled codes through the certified cascade (:mod:`neuralcol.metrics.cascade`):
     the exact labeler only where the detector is in doubt.
 
     Called as ``(codes (n, D), rows (n,) or None) -> (n,)`` "PD for deciding", the ``label`` of
@@ -167,7 +167,7 @@ def certified_outcome(pd_decided: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
 
 def transfer_displacement(v_user: torch.Tensor, decoded_before: torch.Tensor, decoded_after: torch.Tensor,
                           anchor: str = "median") -> torch.Tensor:
-    """The user's meshes moved by the correction the handler's decoded codes imply (issue 27).
+    """The user's meshes moved by the correction the handler's decoded codes imply.
 
     ``v_user + (D(Z) - D(Z_user))``: the input keeps its own detail and frame, and only what the handler
     changed moves. The decoder pins the centroid of every decoded mesh to the rest mesh's, so a limb moved
@@ -245,7 +245,7 @@ class MeshResolution(NamedTuple):
 def shrink_corrections(x: np.ndarray, result: np.ndarray,
                        repaired: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
                        steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The smallest fraction of each correction from which the repair still frees the mesh (issue 43).
+    """The smallest fraction of each correction from which the repair still frees the mesh.
 
     For inputs ``x`` (n, V, 3) and their free results ``result`` (n, V, 3), the correction ``D = result - x`` is
     scaled by s and ``repaired(x + s D)`` tried; bisection over ``steps`` steps (one batched repair per step) finds
@@ -281,7 +281,7 @@ def shrink_corrections(x: np.ndarray, result: np.ndarray,
 def cap_displacements(x: np.ndarray, result: np.ndarray, label: Callable[[np.ndarray], np.ndarray],
                       steps: int, collides: Callable[[np.ndarray], np.ndarray] | None = None,
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The smallest cap on each result's vertex displacements that leaves it collision-free (issue 43).
+    """The smallest cap on each result's vertex displacements that leaves it collision-free.
 
     With ``d = result - x`` and ``m`` its largest vertex displacement, the capped mesh is
     ``x + d_i min(1, c m / |d_i|)`` (each vertex's move keeps its direction, its length clipped at ``c m``: a
@@ -345,7 +345,7 @@ def resolve_meshes(net: torch.nn.Module | None, space, v_user: torch.Tensor,
                    z_user: torch.Tensor | None = None, pd_input: np.ndarray | None = None, repair=None, labeler=None,
                    progress: bool = False, certify=None, skip_freed: bool = False,
                    keep_free: bool = True) -> MeshResolution:
-    """Resolve self-collisions of the user's meshes and return the user's meshes, corrected (issue 27).
+    """Resolve self-collisions of the user's meshes and return the user's meshes, corrected.
 
     The inputs are encoded; the augmented-Lagrangian handler moves each code to the nearest one the detector
     calls free; the displacement between the handled code's and the input code's decoded meshes is added to

@@ -1,4 +1,4 @@
-"""Resolving a motion: per-frame corrections that leave every frame free and vary smoothly in time (issue 43).
+"""Resolving a motion: per-frame corrections that leave every frame free and vary smoothly in time.
 
 Resolving the frames of an animation one by one can pop: two neighbouring frames that collide alike may be freed
 by different moves, and a frame that starts to collide gets its whole correction at once. Here the correction of
@@ -19,7 +19,7 @@ free comes back unchanged. The free frames within a ramp (the frames after a col
 and the frames before one while it ramps in, about ``|correction| / rate`` of each) are moved by design: the
 correction reaches them gradually so that the motion stays smooth instead of popping at the collision's onset or end.
 
-``rate`` is a length: by default the largest frame-to-frame vertex move of the input itself (the issue's
+``rate`` is a length: by default the largest frame-to-frame vertex move of the input itself (the
 yardstick: the correction's largest change against the input's), times ``handler.sequence.rate``. Frames the
 single-mesh resolve cannot free, and jumps the ramp cannot take without a collision, are reported, not hidden.
 

@@ -31,7 +31,7 @@ class AutoencoderLitModule(SplitStepModule):
             (``e ~ N(0, 1)``, ``std`` per latent entry over the batch, not differentiated), so it has to be smooth
             at the scale of the codes' spread instead of switching between training codes. 0 turns it off. Applied
             to Z_0 in stage 1 and to the level-2 codes in stage 2; never at validation. See docs/autoencoder.md.
-        interp_ratio: ACAP-feature interpolation while training (issue 27, item 3): each training batch of B
+        interp_ratio: ACAP-feature interpolation while training: each training batch of B
             meshes gains ``ceil(interp_ratio * B)`` rows ``(1 - t) x_i + t x_j`` of two of its meshes, ``t ~
             U(interp_t)``, so the autoencoder also learns the poses between (and, for t outside [0, 1], slightly
             beyond) its training meshes, the meshes a user brings. The features are normalised by an affine map,

@@ -24,7 +24,7 @@ class DetectorLitModule(SplitStepModule):
         temperature: smooth-max temperature of the aggregated depth (PD target units).
         ce_on_boundary: cross-entropy on the D_b rows too (see :func:`~neuralcol.nn.detector.detector_losses`).
         boundary_reduction: how L_b averages its D_b rows, "boundary" (paper) or "batch" (same function).
-        space: the latent space of the codes; needed by a detector that reads the mesh too (issue 41), whose
+        space: the latent space of the codes; needed by a detector that reads the mesh too, whose
             answers on codes alone (:attr:`on_codes`: the test set, the acquisition, the handler) decode the
             vertices its pair features read. Training reads the features D_c stores.
     """
@@ -75,7 +75,7 @@ class DetectorLitModule(SplitStepModule):
         """Add one batch's logged values (weighted by its rows) to the epoch's sums (restarted at batch 0); on the
         epoch's last batch log their means (what ``log(..., on_epoch=True, batch_size=bs)`` of every batch gives, up
         to round-off). One ``log_dict`` an epoch instead of six ``log`` calls a step: Lightning's per-call
-        bookkeeping was about a third of a training step of the SCAPE detector (issue 42). Where the epoch's batch
+        bookkeeping was about a third of a training step of the SCAPE detector. Where the epoch's batch
         count is unknown (or no batch index is given), every batch logs its own values."""
         n_batches = self._batches_in_epoch(split)
         if batch_idx is None or n_batches is None:

@@ -1,4 +1,4 @@
-"""The certified cascade (issue 29): the detector where it is confident, the exact labeler in a band of doubt.
+"""The certified cascade: the detector where it is confident, the exact labeler in a band of doubt.
 
 The detector's logit ``l`` of a sample and a band ``[lo, hi)`` decide the verdict:
 

@@ -59,7 +59,7 @@ def fnr_interval(predicted: np.ndarray, actual: np.ndarray, level: float = 0.95)
 def fnr_threshold(logits: np.ndarray, collides: np.ndarray, target: float) -> float:
     """The largest logit threshold ``t`` at which ``logit > t`` misses at most ``target`` of the colliding rows:
     with k = floor(target * n_colliding), halfway between the colliding rows' k-th and (k+1)-th smallest logits
-    (k = 0: just below the smallest). The operating point of a detector set on a calibration set (issue 41).
+    (k = 0: just below the smallest). The operating point of a detector set on a calibration set.
 
     Raises:
         ValueError: ``target`` outside [0, 1) or no colliding row.
@@ -78,7 +78,7 @@ def fnr_threshold(logits: np.ndarray, collides: np.ndarray, target: float) -> fl
 def mean_fnr_threshold(sets: list[tuple[np.ndarray, np.ndarray]], target: float) -> float:
     """The largest logit threshold ``t`` at which the **mean** over ``sets`` of each set's FNR (``logit > t`` missing
     its colliding rows) is at most ``target``: every set weighs the same whatever its size. One set: exactly
-    :func:`fnr_threshold`. Used by ``detector.operating_set: both`` (realistic rows and calibration codes, issue 41).
+    :func:`fnr_threshold`. Used by ``detector.operating_set: both`` (realistic rows and calibration codes).
 
     Args:
         sets: ``[(logits (N_j,), collides (N_j,) bool), ...]``; a set without colliding rows is skipped.

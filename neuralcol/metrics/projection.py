@@ -17,7 +17,7 @@ def boundary_shares(pd: np.ndarray, eps: float, clearance_limit: float | None = 
     Args:
         pd: (B,) exact signed penetration depths of the samples.
         eps: the labeler's boundary threshold (``D_b = {0 <= PD <= eps}``, paper eq. 1).
-        clearance_limit: the labels' clearance limit (labels for training, issue 42; None: full labels). A
+        clearance_limit: the labels' clearance limit (labels for training; None: full labels). A
             share whose width reaches it is NaN: a free sample's clearance beyond the limit is not known.
     """
     pd = np.asarray(pd, np.float64)

@@ -1,4 +1,4 @@
-"""TensorBoard as a researcher reads it: one run per stage, each with its own x axis (issue 18).
+"""TensorBoard as a researcher reads it: one run per stage, each with its own x axis.
 
 ``<run dir>/tensorboard/<stage>/``: ``autoencoder_level1`` and ``autoencoder_level2`` (losses against epoch),
 ``detector_<method>`` (training losses against epoch, ``test/*`` against |D_c|, and per round a few decoded

@@ -60,7 +60,7 @@ class CollisionDetector(nn.Module):
             (frozen buffers, differentiable in z). Where the decoder's tanh units switch sharply inside the box
             the label changes sharply in z0 but smoothly in these features (measured in docs/diagnosis.md).
             None: the paper's inputs, Z_all only.
-        geometry: optional :class:`~neuralcol.nn.part_geometry.PartGeometry` (issue 41): each sub-domain's input
+        geometry: optional :class:`~neuralcol.nn.part_geometry.PartGeometry`: each sub-domain's input
             then also holds an embedding of the contact-pair features of its own slots (``geometry_pool``:
             ``"linear"``, one affine map per sub-domain of its slots' features then CELU; ``"deepsets"``, a
             shared per-pair MLP, max and mean over the filled slots), and CSE reads all of them. ``forward`` then
@@ -325,7 +325,7 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
     n_less = int(less.sum())
     if n_less:
         # the mean over the pairs in ``less`` as a masked sum: boolean indexing of the (B, B) matrix and its
-        # backward (nonzero, index, index_put) cost about a third of a training step at batch 1024 (issue 42)
+        # backward (nonzero, index, index_put) cost about a third of a training step at batch 1024
         gap = agg[None, :] - agg[:, None]  # smax_b - smax_a
         l_r = (F.relu(margin - gap) * less).sum() / n_less
     else:
@@ -361,7 +361,7 @@ def decoder_code_features(space) -> tuple[torch.Tensor, torch.Tensor, str] | Non
 
 def net_widths(net_cfg: dict) -> dict:
     """The detector's widths ``{"state_dim", "hidden"}``: the configured ones times ``width`` (default 1; the
-    size sweep's multiplier, issue 17), rounded, at least 1."""
+    size sweep's multiplier), rounded, at least 1."""
     w = float(net_cfg.get("width", 1.0))
     return {k: max(1, round(w * int(net_cfg[k]))) for k in ("state_dim", "hidden")}
 
@@ -376,7 +376,7 @@ def detector_for_space(space, state_dim: int, hidden: int, width: float = 1.0, n
         state_dim, hidden: widths of S_0 and of the hidden layers, times ``width`` (rounded, at least 1).
         normalize_inputs: map the box Z to [-1, 1] inside the network.
         decoder_features: also feed the level-1 decoder's first layer ``act(z0 w + b)``.
-        geometry, geometry_hidden, geometry_pool: the pair features each CP_i also reads (issue 41; None: codes
+        geometry, geometry_hidden, geometry_pool: the pair features each CP_i also reads (None: codes
             only), see :class:`CollisionDetector`.
     """
     l2 = (space.dim - space.n_parts) // space.n_parts

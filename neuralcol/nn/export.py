@@ -71,7 +71,7 @@ class DecoderExport(nn.Module):
         if output not in DECODER_OUTPUTS:
             raise ValueError(f"output={output!r}; use one of {DECODER_OUTPUTS}")
         self.output = output
-        # a PCA space (autoencoder=pca, issue 40) has no network: its decoder is mean + z W
+        # a PCA space (autoencoder=pca) has no network: its decoder is mean + z W
         self.basis = getattr(space, "basis", None) if getattr(space, "net", None) is None else None
         acap = space.acap
         self.n_vertices = acap.n_vertices

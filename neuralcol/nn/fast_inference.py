@@ -34,7 +34,7 @@ RECHECK_BAND = 0.5  # logit band recomputed in float32 by the "bfloat16_checked"
 FORMS = {"float32": ("float32", None), "bfloat16": ("bfloat16", None),
          "bfloat16_checked": ("bfloat16", RECHECK_BAND)}  # name -> (dtype, recheck_band): run.detect(fast=name)
 CPU_BLOCKS = {"float32": 1024, "bfloat16": 2048}  # default rows per compiled call on the CPU
-CPU_BLOCKS_MESH = 256  # ... for a detector that reads the mesh too (128-512 alike compiled, 1024: 1.5x slower; stop 48)
+CPU_BLOCKS_MESH = 256  # ... for a detector that reads the mesh too (128-512 alike compiled, 1024: 1.5x slower)
 RECOMPILE_LIMIT = 64  # compiled variants per code object (dynamo's default: 8)
 
 
@@ -89,7 +89,7 @@ class FastDetector:
         self._recheck = None if self.recheck_band is None else FastDetector(net, "float32", compile=compile)
         self.rechecked_fraction = 0.0
         self.compiled = bool(compile)
-        # a detector that reads the mesh too (issue 41) comes as DetectorOnCodes: its pair features are computed
+        # a detector that reads the mesh too comes as DetectorOnCodes: its pair features are computed
         # from the decoded vertices in float32 (a bfloat16 decode would move them by ~0.2 % of the diagonal)
         self._space = getattr(net, "space", None) if getattr(net, "detector", None) is not None else None
         net = net.detector if self._space is not None else net

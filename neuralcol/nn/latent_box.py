@@ -45,6 +45,6 @@ class LatentBox(nn.Module):
     def outside_box(self, z_all: torch.Tensor) -> torch.Tensor:
         """(B,) bool: the code lies outside the box Z in some entry. The detector trains on codes from Z (U(Z) and
         the projections into it); outside it extrapolates, which is where most codes of unseen meshes land
-        (issue 27: 64 % of SCAPE's realistic meshes, 99 % of proc_hand's)."""
+        (64 % of SCAPE's realistic meshes, 99 % of proc_hand's)."""
         lo, hi = self.box_lo.to(z_all), self.box_hi.to(z_all)
         return ((z_all < lo) | (z_all > hi)).any(-1)

@@ -120,7 +120,7 @@ class LatentSpace(LatentBox):
         path = Path(path)
         blob = read_torch_file(path, map_location, fix=f"delete {path.parent} and run the command again "
                                                         "(the autoencoder is retrained into the cache)")
-        if blob.get("kind") == "pca":  # autoencoder=pca (issue 40)
+        if blob.get("kind") == "pca":  # autoencoder=pca
             return PCALatentSpace.from_blob(blob)
         arch, state = blob["arch"], blob["state"]
         l1 = Level1Autoencoder(arch["n_vertices"], arch["n_components"], arch["hidden"],

@@ -1,5 +1,4 @@
-"""Penetration-aware geometry of each sub-domain: what the detector over code and mesh reads besides the code
-(issue 41).
+"""Penetration-aware geometry of each sub-domain: what the detector over code and mesh reads besides the code.
 
 A self-collision is two pieces of surface coming close and passing through each other: far apart on the mesh
 (an arm through the torso) or near on it but folded onto each other (a bent finger joint). :func:`choose_part_pairs`
@@ -236,7 +235,7 @@ class DetectorOnCodes(nn.Module):
         space: the latent space its codes belong to.
     """
 
-    inference_block: int = 128  # rows per block without gradients on the CPU (64-256 alike, 512+ slower; stop 48)
+    inference_block: int = 128  # rows per block without gradients on the CPU (64-256 alike, 512+ slower)
 
     def __init__(self, detector: nn.Module, space):
         super().__init__()

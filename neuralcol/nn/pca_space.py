@@ -1,4 +1,4 @@
-"""A linear latent space: PCA of the meshes' vertex positions or of their ACAP features (issue 40).
+"""A linear latent space: PCA of the meshes' vertex positions or of their ACAP features.
 
 Two roles:
 

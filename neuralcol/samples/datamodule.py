@@ -82,10 +82,10 @@ class CollisionDataModule(L.LightningDataModule):
         seed: shuffling seed (the order of epoch e depends on ``(seed, e)`` only, so resumed runs replay it).
         val_batch_size: validation batch size; None (default): the training batch size at the time, so the
             validation losses are those of the batches training sees (the ranking term compares the rows of one
-            batch: at 8192 rows, the size before issue 42, it made validation 8x slower than at 1024 on SCAPE and
+            batch: at 8192 rows, the earlier size, it made validation 8x slower than at 1024 on SCAPE and
             most of a paper-scale epoch; the accuracy does not depend on it).
         featurize: ``codes (B, D) -> pair features (B, P, 3)`` of the meshes they decode to, computed for rows
-            appended without features (the labeled samples of every round; issue 41), so training never decodes.
+            appended without features (the labeled samples of every round), so training never decodes.
     """
 
     def __init__(self, path: str | os.PathLike, latent_dim: int, n_parts: int, batch_size: int, pd_unit: float,

@@ -81,7 +81,7 @@ class SpaceDecoder:
 
     def __getstate__(self):
         # the space as plain pickle bytes: multiprocessing's pickler would send its tensors through torch's shared
-        # memory, and workers started with such tensors crashed in their first numba call (SIGSEGV, stop 49)
+        # memory, and workers started with such tensors crashed in their first numba call (SIGSEGV)
         return {"space_bytes": pickle.dumps(self.space)}
 
     def __setstate__(self, state):
@@ -104,7 +104,7 @@ class LatentOracle:
         decode_batch: codes decoded per batch by :meth:`decode` (the labels' codes are decoded chunk by chunk
             where they are labeled, :class:`SpaceDecoder`).
         clearance_limit: None: full labels; a length: clearances capped there, the labels for training whose
-            clipped targets equal the full label's (:meth:`for_training`, issue 42).
+            clipped targets equal the full label's (:meth:`for_training`).
     """
 
     def __init__(self, space: LatentSpace, pool: LabelPool, decode_batch: int = 256,

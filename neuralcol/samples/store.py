@@ -3,7 +3,7 @@
 Columns (N rows): ``id`` int64 (0, 1, 2, ... in append order), ``z`` (N, D) float32, ``pd`` float32,
 ``pd_sub`` (N, K) float32, ``collides`` int8, ``subset`` int8 (0 D_p, 1 D_n, 2 D_b), ``round`` int16 (the
 active-learning round that added the row; 0 = bootstrap), ``origin`` int8 (0 uniform sample from U(Z),
-1 projected onto the detector's boundary); for a detector that reads the mesh too (issue 41), ``geometry``
+1 projected onto the detector's boundary); for a detector that reads the mesh too, ``geometry``
 (N, P, 3) float32: the contact-pair features of each row's mesh, computed when the row is labeled, so training never
 decodes again (a store is created with or without it; the file attribute ``geometry_pairs`` is P).
 
@@ -36,7 +36,7 @@ class Origin(IntEnum):
 
     UNIFORM = 0  # a uniform sample of the box Z
     PROJECTED = 1  # picked by the active acquisition (projected or most uncertain)
-    REALISTIC = 2  # a realistic training mesh (issue 41): code = encode(mesh), pair features of the mesh itself
+    REALISTIC = 2  # a realistic training mesh: code = encode(mesh), pair features of the mesh itself
 
 
 VAL_EVERY = 5  # row ids with id % 5 == 4 are validation rows (20 %)

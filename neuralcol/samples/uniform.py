@@ -104,7 +104,7 @@ def uniform_rows(path: str | os.PathLike, oracle: LatentOracle, n: int, seed: in
         limit = -1.0 if limit is None else float(limit)  # -1: full labels
         if "clearance_limit" not in store.attrs:
             if len(store) and limit != -1.0:
-                raise StoreCorruptedError(f"{path}: holds full labels (written before issue 42), not labels with "
+                raise StoreCorruptedError(f"{path}: holds full labels (written by an older version), not labels with "
                                           f"clearances capped at {limit:g}; delete it or point paths.cache_dir "
                                           "elsewhere")
             store.attrs["clearance_limit"] = limit

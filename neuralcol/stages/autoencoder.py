@@ -272,7 +272,7 @@ def train_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConf
 
 def train_pca_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg: DictConfig | dict, latent_cfg: DictConfig | dict,
                     seed: int) -> tuple[PCALatentSpace, dict]:
-    """``autoencoder=pca``: a PCA latent space of |Z_all| components fit on the training meshes (issue 40).
+    """``autoencoder=pca``: a PCA latent space of |Z_all| components fit on the training meshes.
 
     The split, the box rule (``box_from``, ``box_margin``) and the sub-domains' initial clustering are the bilevel
     autoencoder's, so the two spaces differ only in their maps. Returns the space and its report (the same keys as
@@ -360,7 +360,7 @@ def reference_errors(space: PCALatentSpace, ds: MeshDataset, feats: DatasetFeatu
 
 
 def reference_spaces(ds: MeshDataset, feats: DatasetFeatures, space, report: dict) -> tuple[dict, dict]:
-    """The PCA references of a latent space (issue 40): PCA of the vertex positions and of the raw ACAP features at
+    """The PCA references of a latent space: PCA of the vertex positions and of the raw ACAP features at
     the same |Z_all|, fit on the same training meshes, with the space's sub-domains and box rule.
 
     Returns:
@@ -401,7 +401,7 @@ def train_or_load_latent_space(ds: MeshDataset, feats: DatasetFeatures, ae_cfg, 
     train_keys = {k: v for k, v in ae.items() if k not in ("progress_bar", "accelerator", "val_every")}
     train_keys["threads"] = "machine" if threads is None else int(threads)
     if int(lat["level2_dim"]) == 0:
-        # before issue 31 a level2_dim-0 space still trained a level-2 stage (code-free decoders: a constant offset
+        # formerly a level2_dim-0 space still trained a level-2 stage (code-free decoders: a constant offset
         # per sub-domain, vertex effect ~4e-4 of the diagonal on SCAPE) for level2.epochs; such spaces are not
         # reused for the stage-free model
         train_keys["level2"] = "none"

@@ -1,4 +1,4 @@
-"""Stage: is the box Z worth sampling? (issue 40)
+"""Stage: is the box Z worth sampling?
 
 The detector learns from codes of ``U(Z)`` and is judged on them. When (nearly) every code of the box decodes to a
 self-intersecting mesh, or (nearly) none does, a detector that always answers the majority class is right, the

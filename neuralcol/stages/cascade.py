@@ -1,4 +1,4 @@
-"""Stage: the certified cascade (issue 29): per target FNR, the band of doubt and what it does on the test sets.
+"""Stage: the certified cascade: per target FNR, the band of doubt and what it does on the test sets.
 
 The rule (:mod:`neuralcol.metrics.cascade`): the detector's verdict where its logit lies outside a band
 ``[lo, hi)``, the exact labeler inside it; the band is chosen on a calibration set to reach the target FNR with the

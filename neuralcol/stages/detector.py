@@ -214,7 +214,7 @@ def training_oracle(oracle: LatentOracle, det: dict, seed: int) -> tuple[LatentO
     ``detector.targets.training_labels`` ``limited`` (default; needs ``pd_floor``): clearances capped at the
     targets' floor (:meth:`~neuralcol.samples.oracle.LatentOracle.for_training`), pool
     ``uniform_s<seed>_floor<pd_floor>.h5``;
-    ``full``: the full labels, pool ``uniform_s<seed>.h5`` (the name before issue 42)."""
+    ``full``: the full labels, pool ``uniform_s<seed>.h5`` (the older pools' name)."""
     targets = det["targets"]
     kind = str(targets.get("training_labels", "limited"))
     if kind not in ("limited", "full"):
@@ -256,7 +256,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     test_failures = label_failures(shared / f"test_s{det['test_seed']}.h5")
     # 2. D_c, the acquisition and the rounds
     pd_unit = float(labeler.cap)
-    # issue 42: D_c's rows get labels for training (clearances capped at the targets' floor: same clipped targets,
+    # D_c's rows get labels for training (clearances capped at the targets' floor: same clipped targets,
     # about half the cost of a free mesh) unless detector.targets.training_labels=full
     train_oracle, pool_name = training_oracle(oracle, det, seed)
     pool_path = shared / pool_name
@@ -270,7 +270,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
                                   "directory")
     elif rd.dc.is_file():
         rd.dc.unlink()  # an earlier attempt died before its first checkpoint
-    # issue 41: a detector over code and mesh reads contact pairs chosen on the labeled bootstrap and the
+    # a detector over code and mesh reads contact pairs chosen on the labeled bootstrap and the
     # realistic training meshes (saved in the run directory, so a resumed run builds the same detector)
     inputs = detector_inputs(det)
     geometry, boot = None, None
@@ -297,7 +297,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
         if not echo:
             return
         # the round's detector as it was just tested (the best validation epoch's weights): the handler's success
-        # against |D_c| (paper Fig. 5) can then be measured afterwards, research/issue42/handling_curve.py
+        # against |D_c| (paper Fig. 5) can then be measured afterwards (docs/results.md)
         rd.round_detectors.mkdir(exist_ok=True)
         save_detector(rd.round_detector(last["round"]), module.net, det, method, pd_unit)
         if logger is not None:
@@ -342,7 +342,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
             boot = acquire.take_uniform(int(det["n_init"]))
         dm.append(boot.z, boot.pd, boot.pd_sub, boot.collides, boot.subset, 0, boot.origin)
         rounds_cb.add_label_seconds(boot.label_seconds)
-        if geometry is not None and real_rows is not None and len(real_rows.z):  # issue 41: real meshes as rows
+        if geometry is not None and real_rows is not None and len(real_rows.z):  # real meshes as rows
             dm.append(real_rows.z, real_rows.pd, real_rows.pd_sub, real_rows.collides, real_rows.subset, 0,
                       Origin.REALISTIC, geometry=mesh_pair_features(geometry, real_rows.vertices))
     if geometry is not None:

@@ -1,4 +1,4 @@
-"""Stage: choose the latent space and the detector size of a data set (``model_size=auto``, issue 17).
+"""Stage: choose the latent space and the detector size of a data set (``model_size=auto``).
 
 The rule, in two steps, each "the smallest that is nearly as good as the best":
 
@@ -85,7 +85,7 @@ def choose_latent(records: list[dict], recon_tol: float, rule: str = "tolerance"
         records: one per candidate, with ``n_components``, ``level2_dim`` and ``val_error`` (mean vertex error of
             the held-out meshes; lower is better).
         recon_tol: relative tolerance: eligible if ``val_error <= (1 + recon_tol) * best``.
-        rule: ``tolerance`` (issue 17's rule: the smallest within ``recon_tol`` of the best) or ``knee`` (the
+        rule: ``tolerance`` (the smallest within ``recon_tol`` of the best) or ``knee`` (the
             knee of the error curve, :func:`knee_latent`; the tolerance rule where the curve has no knee).
 
     Returns:
@@ -215,7 +215,7 @@ def search_model_size(cfg: DictConfig, run_dir: Path, ds, feats, run_fn: Callabl
             lat_cfg = _set(cfg, {"dataset.latent.n_components": int(k), "dataset.latent.level2_dim": int(l2)})
             space, rep, cached = train_latent(ds, feats, lat_cfg.autoencoder, lat_cfg.dataset.latent,
                                               int(cfg.autoencoder_seed), Path(cfg.paths.cache_dir))
-            # the PCA references at the same |Z_all| (issue 40): a candidate worse than them is flagged
+            # the PCA references at the same |Z_all|: a candidate worse than them is flagged
             _, refs = reference_spaces(ds, feats, space, rep)
             ref_val = {f"{name}_val_error": e.get("val_mean_vertex_error") for name, e in refs.items()}
             latents.append({"n_components": int(k), "level2_dim": int(l2), "latent_dim": latent_dim(k, l2),

@@ -1,4 +1,4 @@
-"""Stage: the realistic evaluation set (issue 27): meshes a user brings, nobody trained on, labeled exactly.
+"""Stage: the realistic evaluation set: meshes a user brings, nobody trained on, labeled exactly.
 
 Built once per latent space and labeler (cached beside the U(Z) test set, ``<cache>/collision/<key>/
 realistic_<hash>.npz``) from the data set's meshes (:mod:`neuralcol.data.realistic`). Every run evaluates its
@@ -220,7 +220,7 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
             ``repair_reference`` in ``cfg`` the repair alone on the inputs is measured beside it
             (``handling.repair_only``).
         references: ``{name: latent space}`` whose round trips are judged beside the run's
-            (``round_trip.references``: the PCA references of issue 40); None: none.
+            (``round_trip.references``: the PCA references); None: none.
         render_dir: where to render resolve's before and after for one handled input of each kind of collision
             (:func:`render_resolutions`; ``handling.renders`` lists the files); None: no pictures.
 
@@ -234,7 +234,7 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
     limit = evaluation_limit(c, eps)
     z, pd_rt = round_trip_pd(space, v, pool, rows=rt_rows, clearance_limit=limit)
     logit = detector_logits(net, z.numpy())
-    core = getattr(net, "detector", None)  # DetectorOnCodes around a detector that reads the mesh too (issue 41)
+    core = getattr(net, "detector", None)  # DetectorOnCodes around a detector that reads the mesh too
     logit_decoded = None
     if core is not None and core.geometry is not None:  # it judges each mesh by its own geometry, as detect(mesh)
         logit_decoded = logit

@@ -1,4 +1,4 @@
-"""Stage: speed against accuracy of every way to answer "does the mesh of this code self-collide?" (issue 29).
+"""Stage: speed against accuracy of every way to answer "does the mesh of this code self-collide?".
 
 One chart per run (``speed_accuracy.png``, :func:`experiments.reporting.speed_accuracy.plot_speed_accuracy`):
 throughput (samples per second in this one process, timed side by side) against accuracy and against FNR on
@@ -15,7 +15,7 @@ the run's U(Z) test set, so a user reads off "FNR 1 % costs X samples/s". The me
 * ``fcl``: :class:`~neuralcol.collision.fcl_labeler.FCLLabeler` (python-fcl, the paper's labeler), its
   ``verdict``; scored on ``n_fcl`` test codes. Skipped with a note when python-fcl is not importable. MeshLab and
   FCL do not count touching contacts (or one-vertex folds) as ours does, so accuracy < 1 there is a finding;
-* ``latent detector`` (``code+mesh detector`` for a detector over code and mesh, issue 41: its time includes
+* ``latent detector`` (``code+mesh detector`` for a detector over code and mesh: its time includes
   decoding the vertices its pair features read): the run's final detector on codes, batch ``batch`` (4096): eager,
   and compiled (:class:`~neuralcol.nn.fast_inference.FastDetector`, forms ``forms``). Accuracy of the eager float32
   form: the run's ``test_predictions.npz`` (its reported test metrics); of the others: measured on the whole test
@@ -150,7 +150,7 @@ def cascade_points(cascade: dict | None, exact_sps: float | None = None, detecto
     return out
 
 
-CODE_AND_MESH = "code+mesh detector"  # the point family of a detector over code and mesh (issue 41)
+CODE_AND_MESH = "code+mesh detector"  # the point family of a detector over code and mesh
 
 
 def detector_family(net) -> str:

@@ -53,7 +53,7 @@ def config_problems(cfg: DictConfig) -> list[str]:
                 "detector.targets.pd_clip", "detector.net.width"):
         need(key, lambda v: float(v) > 0, "must be > 0")
     need("labeling.labeler.touch_tol", lambda v: float(v) >= 0, "must be >= 0")
-    if _get(cfg, "detector.inputs") is not None:  # issue 41: the detector over code and mesh
+    if _get(cfg, "detector.inputs") is not None:  # the detector over code and mesh
         need("detector.inputs", lambda v: v in ("latent", "code_and_mesh"), "use latent or code_and_mesh")
     if _get(cfg, "detector.operating_fnr") is not None:
         need("detector.operating_fnr", lambda v: 0 <= float(v) < 1, "must lie in [0, 1) (null: the paper's p > 0.5)")

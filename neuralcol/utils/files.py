@@ -16,7 +16,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
 
     Two processes (or threads) that write the same cache entry each write their own temporary file, and the
     last ``os.replace`` wins with a complete file; a reader never sees a partial one. A shared temporary name
-    (``<name>.tmp``) let one writer move the other's file away mid-write (stop 24: two runs of one new data
+    (``<name>.tmp``) let one writer move the other's file away mid-write (two runs of one new data
     set started together failed with FileNotFoundError). The temporary name keeps ``path``'s suffix, since
     ``np.savez`` appends ``.npz`` to names without it. On an exception the temporary file is removed.
     """

@@ -1,4 +1,4 @@
-"""Progress reports that suit where they go (issue 30, item 3): bars on a terminal, lines in a log file.
+"""Progress reports that suit where they go: bars on a terminal, lines in a log file.
 
 On a terminal (or in a Jupyter kernel) loops show tqdm bars and Lightning trainers their progress bar, as before.
 Off a terminal (``python -m experiments.run > log.txt 2>&1``, SLURM, CI) a redrawn bar fills the file with

@@ -1,4 +1,4 @@
-"""Reading and writing torch files without unpickling code (issue 30).
+"""Reading and writing torch files without unpickling code.
 
 ``torch.load`` with ``weights_only`` off unpickles, and unpickling runs whatever code the file names: a shared
 run directory or cache entry could do anything to the machine that loads it. neuralcol therefore reads every

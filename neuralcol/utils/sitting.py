@@ -1,4 +1,4 @@
-"""Runs longer than a sitting (issue 42): a time budget per invocation (``max_minutes``), checked at safe points.
+"""Runs longer than a sitting: a time budget per invocation (``max_minutes``), checked at safe points.
 
 A paper-scale run takes many hours on two cores; a session lasts at most three. ``python -m experiments.run ...
 max_minutes=150`` starts a clock; at every safe point (before each stage of the pipeline, after each committed

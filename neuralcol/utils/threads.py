@@ -1,4 +1,4 @@
-"""One thread count for everything a run's numbers depend on (issue 30: same command, same numbers).
+"""One thread count for everything a run's numbers depend on (same command, same numbers).
 
 A float sum split over threads is added in another order than the same sum on one thread, so torch's intra-op
 reductions (autoencoder and detector training), and BLAS/OpenMP kernels, give other bits on a machine with

