@@ -20,7 +20,8 @@ FAST_KEYS = {"compiled": "float32", "compiled_bf16": "bfloat16",
 
 def concat_forward(net, z_all: torch.Tensor) -> torch.Tensor:
     """The collision probability with CP applied to the concatenation [S_0, part_i], K times per sample: the
-    detector's earlier forward (docs/model_size.md; ``python -m research.detector_forward`` has more)."""
+    detector's earlier forward (docs/studies/detector_inference_speed.md; ``python -m research.detector_forward``
+    has more)."""
     parts, cse_in = net.inputs(z_all)
     s0 = net.cse(cse_in)
     s = net.cp(torch.cat([s0[:, None, :].expand(-1, net.n_components, -1), parts], dim=-1))[..., 0]

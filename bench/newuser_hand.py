@@ -5,10 +5,10 @@
 so another topology: 2194 vertices; other finger lengths, gap, palm thickness, thumb angle and spread range)
 and another pose seed, written as ``DIR/pose_000.obj`` ... (``--poses N`` writes N poses instead of 150; the
 tutorial's test uses 24). ``--variant b`` is a second hand written after the model sizes were chosen by rule, so no
-setting was tried on it before its pre-registered test (docs/diagnosis.md): 8 rings per finger
+setting was tried on it before its pre-registered test (docs/studies/unseen_hand.md): 8 rings per finger
 (2354 vertices), stubbier wider fingers with a wider gap, a thicker palm, a lower thumb, wider flexion and
 spread ranges and pose seed 29. A run on it uses only ``dataset.source.path`` and
-lifts the vertex-count check (docs/diagnosis.md, "A data set nobody tuned for"):
+lifts the vertex-count check (docs/studies/unseen_hand.md):
 
     python -m experiments.run dataset=hand dataset.source.path=DIR dataset.source.expected_vertices=null
 """
@@ -39,7 +39,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("dir", type=Path, help="output folder (created)")
     parser.add_argument("--poses", type=int, default=150, help="number of poses (default 150)")
     parser.add_argument("--variant", choices=sorted(VARIANTS), default="a",
-                        help="which hand: a (default, the hand of docs/results.md) or b (a hand nobody tuned on)")
+                        help="which hand: a (default, the hand of docs/studies/model_size_checks.md) or b (a hand "
+                             "nobody tuned on)")
     args = parser.parse_args(argv)
     if args.poses < 1:
         parser.error(f"--poses {args.poses}: use 1 or more")

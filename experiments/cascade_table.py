@@ -6,11 +6,11 @@ Per run and floor (``pointwise``, ``detector``) and target FNR: the band chosen 
 (``cascade.npz``), FNR, accuracy and exact share on its U(Z) test set (``test_predictions.npz``, the exact labels
 standing for the exact calls), and the throughput priced with the run's own timings (``metrics.json`` →
 ``cascade.exact_ms_per_sample`` and ``detector_us_per_sample``): ``1 / (t_detector + share * t_exact)``, and that
-against the exact path alone. Prints a markdown table (docs/cascade.md, "Measurements").
+against the exact path alone. Prints a markdown table (docs/studies/cascade_band.md).
 
 ``--chart PNG --floor pointwise`` (one run): the run's speed/accuracy chart (``metrics.json`` →
 ``speed_accuracy``) drawn again with the cascade of that floor, priced with the speed stage's timings, e.g. for a
-run made before the floor's default changed (docs/results.md).
+run made before the floor's default changed (docs/studies/one_detector_speed.md).
 """
 
 from __future__ import annotations

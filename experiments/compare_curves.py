@@ -6,7 +6,7 @@ Each ``DIR`` holds a ``diagnosis.json`` written by ``python -m experiments.diagn
 (``diagnose.out=DIR``); ``VARIANT`` names one of its ``diagnose.curve.variants``. The records of the two
 variants are paired by (size, training seed), which the curve trains on the same rows of the same pool, and the
 differences OTHER - BASE of test accuracy and FNR are printed per pair and as means (in points), with the
-epochs each run trained: what the registered tests of docs/diagnosis.md ("Training schedule") were decided on.
+epochs each run trained: what the registered tests of docs/studies/training_schedule.md were decided on.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ where a value came from (keys naming seconds, ms, µs, threads, cache hits or re
 ``test_predictions.npz``, ``realistic_predictions.npz`` and the detector's weights bit for bit. Prints the count
 of identical values, every difference, and keys found in only one of the two; exits 1 when anything differs.
 Used to check that a refactor keeps a run's numbers to the last digit (e.g. ``make run`` and
-``experiment=cpu_scape``, docs/results.md).
+``experiment=cpu_scape``, docs/studies/same_numbers.md).
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Render colliding realistic meshes of a finished run before and after the contact repair (docs/real_meshes.md):
+"""Render colliding realistic meshes of a finished run before and after the contact repair
+(docs/studies/contact_repair.md):
 
     python -m experiments.render_repair RUN_DIR [OUT_DIR] [N]
 

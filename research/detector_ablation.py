@@ -1,4 +1,5 @@
-"""Ablation of two training choices of the detector that the paper does not make (docs/detector.md).
+"""Ablation of two training choices of the detector that the paper does not make
+(docs/studies/detector_training_choices.md).
 
 ``python -m research.detector_ablation [--dataset-key KEY] [--sizes 2000 6000] [--seeds 0 1]``
 

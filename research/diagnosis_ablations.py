@@ -1,7 +1,7 @@
 """The experiments that decided issue 15's fixes, rerunnable: ``python -m research.diagnosis_ablations CMD ...``.
 
-Every table of docs/diagnosis.md that is not produced by ``experiments.diagnose`` or a pipeline run comes from
-one of these commands (each prints its table and writes JSON with ``--out``). They use the shared caches of
+Every table of docs/studies/diagnosis_scape.md that is not produced by ``experiments.diagnose`` or a pipeline run
+comes from one of these commands (each prints its table and writes JSON with ``--out``). They use the shared caches of
 ``experiments.run`` (latent spaces, labeled test sets, labeled uniform pools): run the pipeline or
 ``experiments.diagnose`` for the data set first, or let them label what is missing.
 

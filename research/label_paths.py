@@ -6,7 +6,7 @@ Labels 1 000 uniform codes (seed 777) of a finished SCAPE run on a 2-worker labe
 (after a 64-code warm-up that starts and compiles the workers): ``before``, issue 41's path (codes decoded in this
 process, full labels), run from a checkout of the code before issue 42's labeler work (commit 26f0965: its full label
 and far pass are issue 41's); ``now``, issue 42's (decoded in the workers, clearances capped at the targets' floor),
-run from main. Alternate the two a few times (docs/labels.md, "Labels for training": stop 50).
+run from main. Alternate the two a few times (docs/studies/training_labels.md).
 """
 import sys
 

@@ -4,7 +4,7 @@ For each run directory: the detector's logits on the cascade's calibration set (
 set (``test_predictions.npz``) and on the realistic set (``realistic_predictions.npz``, clear cases). The threshold
 whose calibration FNR is at most ``--fnr`` (:func:`~neuralcol.metrics.detection.fnr_threshold`, what
 ``detector.operating_fnr`` folds into a detector) is applied to the test sets, beside logit 0. It separates the
-operating point's share of a gain from the inputs' share (rule v2, docs/results.md).
+operating point's share of a gain from the inputs' share (rule v2, docs/studies/one_detector.md).
 
     python -m research.operating_point outputs/issue40b/hand_s0 outputs/issue41/hand_cm_s1 --fnr 0.1 [--json OUT]
 

@@ -5,8 +5,7 @@
 Labels every mesh of the data set folder exactly, resolves the free ones in one batch and one by one and counts the
 results equal to the input (``np.array_equal`` on the float64 values), then times ``resolve`` of one free mesh
 (``--mesh``, a file stem): one warm-up call, then the median of ``--repeats`` calls, beside the median of one exact
-label of the same mesh (``run.label``, what the free check costs). Result in docs/real_meshes.md ("A free mesh comes
-back untouched").
+label of the same mesh (``run.label``, what the free check costs). Result in docs/studies/resolve_free_meshes.md.
 """
 
 from __future__ import annotations

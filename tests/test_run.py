@@ -45,9 +45,9 @@ def test_scape_k8l3_is_scape_with_the_sizes_of_before():
     (["experiment=cpu_anny_body"], "pca"), (["experiment=paper_anny_body"], "bilevel"),
     (["dataset=anny_body", "autoencoder=cpu"], "bilevel")])
 def test_latent_space_of_each_preset(overrides, kind):
-    """Issue 40: SCAPE, proc_hand, proc_cloth and anny_body take a PCA latent space with a fitted box (rule v2,
-    docs/results.md); the paper presets, the bilevel SCAPE layout and the size search keep the autoencoder; the
-    command line wins."""
+    """SCAPE, proc_hand, proc_cloth and anny_body take a PCA latent space with a fitted box (rule v2,
+    docs/studies/latent_space.md); the paper presets, the bilevel SCAPE layout and the size search keep the
+    autoencoder; the command line wins."""
     cfg = _compose(overrides)
     assert cfg.autoencoder.kind == kind
     assert cfg.box_fit.enabled and list(cfg.box_fit.band) == [0.10, 0.55]
@@ -55,8 +55,8 @@ def test_latent_space_of_each_preset(overrides, kind):
 
 
 def test_scape_cpu_preset_labels_26000_samples_with_the_detector_over_code_and_mesh():
-    # issue 41, rule v3 (docs/results.md): the detector over code and mesh at 8 000 + 3 x 6 000 labels is past the
-    # latent detector's 38 000 (stop 25's sweep) and fits the 30 minutes
+    # rule v3 (docs/studies/one_detector.md): the detector over code and mesh at 8 000 + 3 x 6 000 labels is past
+    # the latent detector's 38 000 and fits the 30 minutes
     cfg = _compose(["experiment=cpu_scape"])
     cpu = cfg.dataset.cpu
     assert cpu.n_init + cpu.max_rounds * cpu.n_aug == 26000
@@ -232,7 +232,7 @@ def test_scape_autoencoder_cpu_preset(tmp_path, scape_dir):
     """Acceptance of issue 4 (slow, ~5 min): the CPU preset of the bilevel autoencoder (|Z_0| = 8, level-2 codes
     of 3: ``dataset=scape_k8l3``) reaches <= 1% mean vertex error on the training meshes. SCAPE's default since
     issue 17 (16 components, no level 2) trades training error (1.5 %) for held-out error (4.9 % against 7.8 %)
-    and trains about 3x longer: docs/autoencoder.md."""
+    and trains about 3x longer: docs/studies/autoencoder_cpu_preset.md."""
     from experiments.run import run
 
     cfg = _compose(["dataset=scape_k8l3", f"paths.data_dir={scape_dir.parent}", f"paths.cache_dir={tmp_path}/cache",

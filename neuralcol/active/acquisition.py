@@ -106,7 +106,7 @@ class ProjectedAcquisition(UniformAcquisition):
         newton: keyword arguments of :func:`~neuralcol.active.newton.newton_project`.
         start: where the projected half starts: ``"dc"`` (rows drawn from D_c, the paper's Algorithm 1) or
             ``"uncertain"`` (of ``candidates`` x n fresh codes from U(Z), the n whose detector logit is closest
-            to 0, i.e. probability closest to 0.5: pool-based uncertainty sampling; docs/diagnosis.md).
+            to 0, i.e. probability closest to 0.5: pool-based uncertainty sampling; docs/studies/diagnosis_scape.md).
         candidates: candidate codes per selected code with ``start="uncertain"``.
         project: run the Newton projector from the starting codes (paper); False labels them as they are.
     """

@@ -14,7 +14,7 @@ Coordinates (``coordinates``): ``"box"`` (default) takes the Gauss-Newton step i
 coordinates ``x = (z - c) / h`` (c centre, h half-range of each axis), so every axis moves in proportion to
 its own range; ``"raw"`` takes it in the raw latent coordinates as the paper writes it. In raw coordinates
 the step along axis j is ``~ g_x,j / h_j^2``: with level-1 codes spanning hundreds of units and level-2 codes
-tens, level-1 axes barely move and level-2 axes are thrown to the box faces (docs/diagnosis.md).
+tens, level-1 axes barely move and level-2 axes are thrown to the box faces (docs/studies/diagnosis_scape.md).
 """
 
 from __future__ import annotations

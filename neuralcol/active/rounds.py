@@ -41,7 +41,7 @@ class Schedule:
     optimizer restart from scratch (baselines) or continue (active fine-tuning), and a floor on the optimizer
     steps: a round runs ``max(epochs, ceil(min_steps / batches per epoch))`` epochs, so a budget meant for
     large data sets (the paper's 50 epochs of fine-tuning at 2*10^5+ rows) does not shrink to a few hundred
-    steps on a few thousand rows (docs/diagnosis.md, cause 2). ``min_steps = 0``: epochs only (paper)."""
+    steps on a few thousand rows (docs/studies/diagnosis_scape.md, cause 2). ``min_steps = 0``: epochs only (paper)."""
 
     epochs: int
     lr: float

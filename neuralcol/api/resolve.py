@@ -87,7 +87,8 @@ class ResolveMixin:
         False; it goes through neither the encoder nor the handler nor the repair, so ``codes``, ``codes_before``,
         ``decoded`` and ``pd_before`` (the round trip's PD) are NaN for it (``shrink`` / ``cap`` NaN; with
         ``certify`` its verdict is exact and free). A call whose meshes are all free costs one exact label per mesh
-        (resolve of one free SCAPE mesh: 13.7 ms, docs/real_meshes.md). Only the colliding meshes are moved.
+        (resolve of one free SCAPE mesh: 13.7 ms, docs/studies/resolve_free_meshes.md). Only the colliding meshes
+        are moved.
 
         Args:
             vertices_or_codes: meshes (N, V, 3) / (V, 3) or codes (N, D) / (D,), numpy or torch.

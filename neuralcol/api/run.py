@@ -208,9 +208,10 @@ class TrainedRun(CascadeMixin, ResolveMixin):
         ``"bfloat16"`` (compiled, bfloat16 weights: ~2.3x faster where bfloat16 is native; about 0.1 % of labels
         flip) or ``"bfloat16_checked"`` (bfloat16, with the rows whose logit lies near 0 recomputed in float32:
         ~1.9x, no label flipped on SCAPE's test sets). The first call with a ``fast`` form compiles it (seconds);
-        :class:`~neuralcol.nn.fast_inference.FastDetector` and docs/model_size.md have the measurements. Meshes given
-        to a detector over code and mesh run the compiled mesh path (``FastDetector.on_meshes``): on SCAPE meshes
-        59 µs per mesh against 104 eager, 110x the exact full label (``python -m research.mesh_speed``).
+        :class:`~neuralcol.nn.fast_inference.FastDetector` and docs/studies/detector_inference_speed.md have the
+        measurements. Meshes given to a detector over code and mesh run the compiled mesh path
+        (``FastDetector.on_meshes``): on SCAPE meshes 59 µs per mesh against 104 eager, 110x the exact full label
+        (``python -m research.mesh_speed``).
 
         ``certify``: None, or a target FNR in [0, 1): the certified cascade (docs/cascade.md). The band ``[lo, hi)``
         of that target (:meth:`band`, from the run's calibration set) decides which rows the exact labeler judges:

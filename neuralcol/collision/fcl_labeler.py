@@ -47,7 +47,7 @@ Definitions (``ell``, ``diag``, ``tau = touch_tol * ell``, ``cap = clearance_cap
 * **PD.** ``PD = max_i PD_i``: > 0 iff the mesh self-collides (then the deepest FCL contact depth),
   otherwise minus the capped clearance.
 
-Differences from ``ExactLabeler`` (``docs/labels.md``, "python-fcl backend"):
+Differences from ``ExactLabeler`` (``docs/studies/fcl_backend.md``):
 
 * verdict, approximate: FCL's triangle test is in floating point with its own tolerances, so configurations within
   round-off of contact (coplanar overlaps, near-coplanar crossings, exact touching) may be judged either way;

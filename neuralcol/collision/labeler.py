@@ -239,7 +239,7 @@ class ExactLabeler(MeshByMesh):
         cell_factor: grid cell size of the broadphase in units of the mean triangle box size.
         prune: skip the pairs that provably cannot lower a part's clearance (default); False evaluates every
             pair within cap, the reference path (same labels, quadratic in the mesh density; see
-            ``docs/labels.md``, "Scaling").
+            ``docs/studies/labeler_scaling.md``).
         far_clusters: triangles per rest-mesh cluster (1-8) of the far pass's broadphase
             (:mod:`~neuralcol.collision.kernels.clusters`); 0 uses one grid over every triangle instead, the path
             before clusters (same labels bit for bit, slower).

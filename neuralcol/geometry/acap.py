@@ -365,7 +365,8 @@ class ACAP:
             fast: where no graph is needed (``torch.no_grad()`` or features without ``requires_grad``) and on the
                 CPU, build the solve's right-hand side in one numba pass (float64; ~4x faster on SCAPE, equal to
                 round-off). Opt-in: as the default it moved ``make run``'s accuracy by -0.59 points over 3 seeds,
-                beyond the rule registered in docs/acap.md (round-off carried by training; labels unchanged).
+                beyond the rule registered in docs/studies/acap_fast_decode.md (round-off carried by training;
+                labels unchanged).
 
         Returns:
             (B, V, 3) vertices (or (V, 3)) with the rest mesh's centroid; same dtype and device.

@@ -167,7 +167,7 @@ class RepairSettings:
     untangle: dict | None = None  # settings of neuralcol.handler.untangle.UntangleSettings (None: its defaults)
     retry: dict | None = field(default_factory=lambda: {"anchor": 0.01})  # untangle settings changed for a third
     # attempt, from the input, where the repairs above leave a mesh colliding; kept only where it frees it (None: no
-    # third attempt). Default: a wider field (docs/real_meshes.md "A wider untangle where both repairs fail")
+    # third attempt). Default: a wider field (docs/studies/wider_untangle.md)
     shrink_steps: int = 0       # resolve: bisection steps shrinking the neural path's correction (0: off)
     cap_steps: int = 6          # resolve: bisection steps capping a freed result's displacement (0: off; the
                                 # default, rule v10 met)

@@ -44,7 +44,8 @@ set, at the price of more exact calls.
 The FNR guarantee holds on the calibration set; on other samples of the same distribution the FNR is near the target
 (the runs report it on the U(Z) test set), on another distribution (the realistic meshes) it may not be.
 Calibration without a colliding sample raises (the FNR is undefined). :func:`apply_band` applies a band, calling
-the exact labeler for the band's rows only. docs/cascade.md has the pipeline's measurements and the API.
+the exact labeler for the band's rows only. docs/cascade.md has the API, docs/studies/cascade_band.md the
+pipeline's measurements.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""Accuracy and FNR of the detector's verdict ``p > t`` as the decision threshold t moves (docs/diagnosis.md,
-"A lower decision threshold"; ``python -m research.threshold_tradeoff`` scores finished runs with it)."""
+"""Accuracy and FNR of the detector's verdict ``p > t`` as the decision threshold t moves
+(docs/studies/decision_threshold.md; ``python -m research.threshold_tradeoff`` scores finished runs with it)."""
 
 from __future__ import annotations
 

@@ -52,13 +52,14 @@ class CollisionDetector(nn.Module):
         hidden: hidden width of CSE, CP and MLP_c.
         box_lo, box_hi: (D,) the latent box Z. Codes are mapped affinely from the box to [-1, 1] before CSE
             and CP (the raw level-1 codes span hundreds of units, the level-2 ones tens; unscaled inputs
-            train measurably worse, see docs/detector.md). The map is part of the network (saved buffers),
-            so gradients w.r.t. the raw codes, used by the projector and the handler, include it.
+            train measurably worse, see docs/studies/detector_training_choices.md). The map is part of the network
+            (saved buffers), so gradients w.r.t. the raw codes, used by the projector and the handler, include it.
         code_features: optional ``(w (K, H), b (K, H), activation)``: the first layer of the latent space's
             level-1 decoder (``Level1Autoencoder.comp_in_w``, ``comp_in_b``, ``activation``). Each sub-domain's
             input then also holds ``act(z0_i w_i + b_i)`` (H values), the decoder's own reading of its code
             (frozen buffers, differentiable in z). Where the decoder's tanh units switch sharply inside the box
-            the label changes sharply in z0 but smoothly in these features (measured in docs/diagnosis.md).
+            the label changes sharply in z0 but smoothly in these features (measured in
+            docs/studies/diagnosis_scape.md).
             None: the paper's inputs, Z_all only.
         geometry: optional :class:`~neuralcol.nn.part_geometry.PartGeometry`: each sub-domain's input
             then also holds an embedding of the contact-pair features of its own slots (``geometry_pool``:
@@ -303,7 +304,7 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
       ``boundary_reduction="batch"`` the D_b terms are summed and divided by the batch size instead, so a D_b row
       weighs ``w_b / B`` like a cross-entropy row's ``w_ce / B`` rather than ``w_b / |D_b in batch|`` (with the
       paper's eps, D_b is a few rows per thousand: ~100x the weight of a CE row). Not in the paper; a
-      diagnostic of supv_bd (docs/diagnosis.md).
+      diagnostic of supv_bd (docs/studies/boundary_loss_weight.md).
 
     Args:
         out: detector output for the batch.
@@ -313,7 +314,7 @@ def detector_losses(out: DetectorOutput, pd: torch.Tensor, pd_sub: torch.Tensor,
         w_pd, w_pdsum, w_r, w_ce, w_b: weights (paper: 5, 0.2, 2, 2, 0.5).
         margin: ranking margin alpha.
         temperature: smooth-max temperature.
-        ce_on_boundary: cross-entropy on D_b rows too (not in the paper; docs/diagnosis.md, cause 4).
+        ce_on_boundary: cross-entropy on D_b rows too (not in the paper; docs/studies/diagnosis_scape.md, cause 4).
         boundary_reduction: "boundary" (paper: mean over the batch's D_b rows) or "batch" (sum / batch size).
 
     Returns:

@@ -12,8 +12,8 @@ inference after training (screening many codes, the inference benchmark):
 * ``dtype="bfloat16"``: a bfloat16 copy of the weights (matrix products in bfloat16, outputs returned in
   float32). On CPUs with native bfloat16 dot products (AVX512-BF16, AMX) the matrix products run several times
   faster; the probabilities move by up to ~0.02 and a small share of predicted labels flips
-  (docs/model_size.md measures both on SCAPE's test sets). Elsewhere bfloat16 is emulated and slower:
-  :func:`bf16_is_native` says which.
+  (docs/studies/detector_inference_speed.md measures both on SCAPE's test sets). Elsewhere bfloat16 is emulated
+  and slower: :func:`bf16_is_native` says which.
 
 Inference only: no gradients flow through a :class:`FastDetector`.
 """
@@ -30,7 +30,7 @@ from neuralcol.nn.part_geometry import vertex_decoder
 DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 MIN_PADDED_ROWS = 16  # the smallest compiled block
 RECHECK_BAND = 0.5  # logit band recomputed in float32 by the "bfloat16_checked" form (> 2x the largest bfloat16
-# logit error measured on SCAPE's detectors, 0.22; no test prediction flips: docs/model_size.md)
+# logit error measured on SCAPE's detectors, 0.22; no test prediction flips: docs/studies/detector_inference_speed.md)
 FORMS = {"float32": ("float32", None), "bfloat16": ("bfloat16", None),
          "bfloat16_checked": ("bfloat16", RECHECK_BAND)}  # name -> (dtype, recheck_band): run.detect(fast=name)
 CPU_BLOCKS = {"float32": 1024, "bfloat16": 2048}  # default rows per compiled call on the CPU
@@ -60,7 +60,7 @@ class FastDetector:
             CUDA); False runs the copy eagerly (for comparison, or where no compiler exists).
         block: rows per compiled call (default on the CPU: 1024 in float32, 2048 in bfloat16, the fastest of
             256-4096 on a 2-core AVX-512 machine, ``python -m research.detector_forward RUN --fast-blocks ...``,
-            docs/model_size.md; a detector that reads the mesh too: 256; on CUDA 65536).
+            docs/studies/detector_inference_speed.md; a detector that reads the mesh too: 256; on CUDA 65536).
         recheck_band: bfloat16 only: rows whose bfloat16 logit lies within this distance of 0 are recomputed by a
             float32 copy (compiled like this one), so their outputs, and every predicted label whose bfloat16
             logit error is below the band, are float32's. None: no recheck. ``rechecked_fraction`` holds the

@@ -30,7 +30,7 @@ def detector_targets(rows: CollisionRows, pd_unit: float, pd_clip: float,
 
     ``pd_floor < 0 < pd_clip`` bound the scaled PD targets (``pd_floor=None``: no lower bound; the labeler's
     free depths are >= -1, the cap, anyway). A narrow band (e.g. +-0.25) keeps the regression terms about the
-    boundary, where the sign is decided (docs/diagnosis.md, cause 5)."""
+    boundary, where the sign is decided (docs/studies/diagnosis_scape.md, cause 5)."""
     if pd_unit <= 0 or pd_clip <= 0 or (pd_floor is not None and pd_floor >= 0):
         raise ValueError(f"pd_unit={pd_unit} and pd_clip={pd_clip} must be > 0 and pd_floor={pd_floor} < 0")
     low = -np.inf if pd_floor is None else float(pd_floor)

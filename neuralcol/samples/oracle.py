@@ -121,8 +121,8 @@ class LatentOracle:
     def for_training(self, pd_floor: float | None) -> LatentOracle:
         """This oracle's labels for training: clearances capped just beyond ``-pd_floor`` caps (the detector's
         targets are ``clip(pd / cap, pd_floor, pd_clip)``, so they are the full label's bit for bit while a free
-        mesh costs about half; ``docs/labels.md``). ``pd_floor`` None (targets without a lower bound): this
-        oracle, full labels. Same pool, same space."""
+        mesh costs about half; ``docs/studies/training_labels.md``). ``pd_floor`` None (targets without a lower
+        bound): this oracle, full labels. Same pool, same space."""
         if pd_floor is None:
             return self
         if not float(pd_floor) < 0:

@@ -1,4 +1,4 @@
-"""Stage: fit the box Z so that U(Z) is worth sampling (docs/autoencoder.md "The box").
+"""Stage: fit the box Z so that U(Z) is worth sampling (docs/autoencoder.md "The box Z").
 
 The paper's box is ``[min, max]`` of the training meshes' codes in each entry (sec. 4.1). How much of it decodes to
 self-intersecting meshes is a fact of the latent space, not of the data: SCAPE's meshes give 27 % in the bilevel

@@ -297,7 +297,7 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
         if not echo:
             return
         # the round's detector as it was just tested (the best validation epoch's weights): the handler's success
-        # against |D_c| (paper Fig. 5) can then be measured afterwards (docs/results.md)
+        # against |D_c| (paper Fig. 5) can then be measured afterwards (docs/studies/scape_paper_scale.md)
         rd.round_detectors.mkdir(exist_ok=True)
         save_detector(rd.round_detector(last["round"]), module.net, det, method, pd_unit)
         if logger is not None:

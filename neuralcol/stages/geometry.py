@@ -4,7 +4,7 @@ code_and_mesh``).
 * :func:`realistic_rows`: realistic training meshes (built like the realistic evaluation set, from the
   autoencoder's *training* meshes only; cached beside the U(Z) test set) labeled in full and encoded. They join
   D_c as rows of their own (code = encode(mesh), pair features of the mesh itself, exact label): a real mesh's detail
-  lies outside the span of the decoded samples (docs/results.md).
+  lies outside the span of the decoded samples (docs/studies/one_detector.md).
 * :func:`choose_run_geometry`: the contact pairs of each sub-domain, chosen on the decoded bootstrap samples (with
   their labels) and the realistic training meshes, saved in the run directory (``geometry.npz``) so a resumed run
   builds the same detector; :func:`load_run_geometry` reads them back.

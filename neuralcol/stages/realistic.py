@@ -60,7 +60,7 @@ def evaluation_limit(cfg, eps: float) -> float | None:
     ``clear_eps * eps`` with ``label_clearance: clear``, the most that the clear-case rule and the verdicts read
     (a free mesh farther than that is clear either way; colliding meshes' PD is unchanged); None with ``full``
     or ``clear_eps: 0``. Labeling free meshes to the whole ``clearance_cap`` costs 1.4x (SCAPE) to 2.5x (anny_body)
-    as much (docs/results.md, "Where the operating threshold lands")."""
+    as much (docs/studies/operating_threshold.md)."""
     c = as_dict(cfg)
     how = str(c.get("label_clearance", "full"))
     if how not in LABEL_CLEARANCES:

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The deciding runs of the rule "A wider untangle where both repairs fail" (docs/real_meshes.md): held-out draws
+# The deciding runs of the rule "A wider untangle where both repairs fail" (docs/studies/wider_untangle.md): held-out draws
 # (seed 1, none of the realistic meshes the seed-0 study resolved) of the four data sets, resolved without a run by
 # the default repairs and with handler.repair.retry={anchor: 0.01}. No motions (they do not enter the rule).
 # Needs the seed-0 study's output: .venv/bin/python -m research.anymesh.realistic_resolve (outputs/anymesh/).

@@ -1,4 +1,4 @@
-"""The tables of docs/real_meshes.md "Resolving without a run" from the study's outputs: per data set and draw
+"""The tables of docs/studies/resolve_without_run.md from the study's outputs: per data set and draw
 (seed 0, held-out), resolved by the repairs alone and by the data set's trained run, the share freed, the moves
 (fractions of the rest mesh's bounding-box diagonal; the per-mesh largest move also over the freed meshes alone,
 since a mesh the repairs give up on moves less) and the seconds (median / mean / max).

@@ -1,9 +1,9 @@
 #!/bin/bash
-# issue 42 (stop 56 on): a second queue beside paper_queue_v3.sh, registered in docs/results.md before its runs: the
+# issue 42 (stop 56 on): a second queue beside paper_queue_v3.sh, registered in docs/studies/scape_paper_scale.md before its runs: the
 # third seed of every method (neuralcol's default, active_paper, supv_bd, supv) and supv's second, so that Table 3's
 # headline figures are means over 3 seeds (the guide's rule), plus neuralcol_s1 started now instead of after the
 # paper's seed-0 runs. The paper's latent-only detector trains on one core (4 s an epoch over 1.6e5 rows), so the
-# second core idles while v3 trains it; runs that overlap are marked in docs/results.md, their wall times are not
+# second core idles while v3 trains it; runs that overlap are marked in docs/studies/scape_paper_scale.md, their wall times are not
 # those of a machine to themselves. Same commands as v3 (its `run`): a job v3 also lists (neuralcol_s1) is skipped by
 # whichever queue comes second (finished: metrics.json; still running: the run directory's lock refuses it at once).
 # Frozen worktree as first argument (default /work/paperq).

@@ -4,7 +4,7 @@
 # eight: each baseline point is re-trained from scratch on the first N uniform samples of the seed's pool (paper sec.
 # 5, "we re-train our two baselines ... after each iteration"), so fewer sizes change the curve's resolution, not any
 # point's value, and cost 100 x (2 + 3.75 + 5.5) instead of 100 x (2 + 2.5 + ... + 5.5) row-epochs (2.7x fewer; about
-# 8 h of training each at all eight sizes on 2 cores). Registered in docs/results.md before these runs.
+# 8 h of training each at all eight sizes on 2 cores). Registered in docs/studies/scape_paper_scale.md before these runs.
 # Frozen worktree as first argument (default /work/paperq). Waits for a sitting still running (from v2) to exit first.
 # Start: nohup research/issue42/paper_queue_v3.sh /work/paperq > outputs/issue42/paper_queue.out 2>&1 &
 W=${1:-/work/paperq}

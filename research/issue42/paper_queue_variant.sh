@@ -1,5 +1,5 @@
 #!/bin/bash
-# issue 42 (stop 59 on): the registered variant run paper_active_bdbatch_s0 (stop 57, docs/results.md) on the core
+# issue 42 (stop 59 on): the registered variant run paper_active_bdbatch_s0 (stop 57, docs/studies/scape_paper_scale.md) on the core
 # paper_queue_side2.sh frees when it finishes, instead of waiting behind neuralcol_s2 (~4 h) at the end of
 # paper_queue_tail.sh. Same command and options as the tail's last job; only which core runs it and when. Whichever
 # queue comes second skips it (finished: metrics.json; running: its run directory's lock, exit 2).

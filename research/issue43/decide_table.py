@@ -1,5 +1,5 @@
-"""Issue 43: the rule registered in docs/real_meshes.md (untangle as the default repair), read from the deciding
-runs' ``realistic_{contact,untangle}_stop51.json`` (``outputs/issue43/decide_queue.sh``):
+"""Issue 43: the rule registered in docs/studies/untangle_repair.md (untangle as the default repair), read from
+the deciding runs' ``realistic_{contact,untangle}_stop51.json`` (``outputs/issue43/decide_queue.sh``):
 
     PYTHONPATH=. python research/issue43/decide_table.py RUN_DIR [RUN_DIR ...] [--tag stop51] [--candidate M]
         [--contact-tag T]

@@ -1,5 +1,5 @@
-"""Issue 43: the rules registered in docs/real_meshes.md ("Shrinking the neural correction", "Capping the
-displacement"), read from the deciding runs' ``realistic_<name>{0,N}_<tag>.json`` and the user path's
+"""Issue 43: the rules registered in docs/studies/shrink_correction.md and docs/studies/displacement_cap.md, read
+from the deciding runs' ``realistic_<name>{0,N}_<tag>.json`` and the user path's
 ``user_scape_<name>{0,N}_<tag>.json`` (``research/issue43/queues/decide_queue_v8.sh``, ``_v9.sh``):
 
     PYTHONPATH=. python research/issue43/shrink_table.py RUN_DIR [RUN_DIR ...] [--tag stop53] [--user-dir D]

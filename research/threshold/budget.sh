@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Criterion (d) of the operating threshold's rule v1 (docs/results.md, "Where the operating threshold lands"):
+# Criterion (d) of the operating threshold's rule v1 (docs/studies/operating_threshold.md):
 # `make run` (seed 0) with rule v1's settings from an empty cache, wall time and peak memory by /usr/bin/time -v.
 # Run it alone on the machine: anything else running beside it inflates the figure. The numba kernels' own cache
 # (neuralcol/collision/kernels/__pycache__) stays warm, as after `make install`'s first run.

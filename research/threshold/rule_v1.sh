@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The deciding runs of the operating threshold's rule v1 (docs/results.md, "Where the operating threshold lands"):
+# The deciding runs of the operating threshold's rule v1 (docs/studies/operating_threshold.md):
 # make run (proc_hand), SCAPE's, proc_cloth's and anny_body's CPU presets, seeds 0-2, each with the realistic test
 # set grown (4x the candidates, up to 1000 clear meshes per class; anny_body 2x and 300) and the threshold set on a
 # realistic calibration set apart from D_c drawn the same way (realistic.calibration.scale=1: as large as the grown

@@ -1,5 +1,5 @@
-"""The operating threshold's rule v1 read against its criteria (docs/results.md, "Where the operating threshold
-lands"), from the deciding runs of ``research/threshold/rule_v1.sh``:
+"""The operating threshold's rule v1 read against its criteria (docs/studies/operating_threshold.md), from the
+deciding runs of ``research/threshold/rule_v1.sh``:
 
     .venv/bin/python -m research.threshold.rule_v1_summary [--dir outputs/threshold/rule_v1] [--out FILE]
 

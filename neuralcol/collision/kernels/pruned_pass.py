@@ -1,6 +1,6 @@
 """The pruned label passes of :class:`~neuralcol.collision.labeler.ExactLabeler`: near pairs from the rest mesh's
-table and far pairs from one grid, skipping the pairs that provably cannot change a label (``docs/labels.md``,
-"Scaling")."""
+table and far pairs from one grid, skipping the pairs that provably cannot change a label
+(``docs/studies/labeler_scaling.md``)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 #!/bin/bash
-# issue 43, stop 53: the rule registered in docs/real_meshes.md ("Capping the displacement", rule v10: verdict-only bisection): each seed-0
+# issue 43, stop 53: the rule registered in docs/studies/displacement_cap.md (rule v10: verdict-only bisection): each seed-0
 # run's realistic evaluation with today's defaults (cap_steps=0) and with cap_steps=6, one after the other,
 # ALONE (the paper-scale queue is paused with SIGSTOP while these run, resumed after). Runs from a frozen worktree
 # (/work/decide10, its commit printed first) so that edits in /work/main cannot change the code mid-run.

@@ -1,5 +1,5 @@
 #!/bin/bash
-# issue 43, stop 51: rule v2 (contact_untangle) deciding runs; the rule registered in docs/real_meshes.md (untangle as the default
+# issue 43, stop 51: rule v2 (contact_untangle) deciding runs; the rule registered in docs/studies/untangle_repair.md (untangle as the default
 # repair): each seed-0 run's realistic evaluation with the contact repair and with untangle, ALONE (the paper-scale
 # queue is paused with SIGSTOP while these run, resumed after). Runs from a frozen worktree (/work/decide, commit
 # noted in decide_queue.out) so that edits in /work/main cannot change the code mid-run.

@@ -1,5 +1,5 @@
 #!/bin/bash
-# issue 43, stop 53: the rule registered in docs/real_meshes.md ("Shrinking the neural correction"): each seed-0
+# issue 43, stop 53: the rule registered in docs/studies/shrink_correction.md: each seed-0
 # run's realistic evaluation with today's defaults (shrink_steps=0) and with shrink_steps=5, one after the other,
 # ALONE (the paper-scale queue is paused with SIGSTOP while these run, resumed after). Runs from a frozen worktree
 # (/work/decide8, its commit printed first) so that edits in /work/main cannot change the code mid-run.

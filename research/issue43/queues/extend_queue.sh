@@ -1,5 +1,5 @@
 #!/bin/bash
-# issue 43, stop 52: the extra_iter rule's runs (docs/real_meshes.md "Going on while the curves still shrink"),
+# issue 43, stop 52: the extra_iter rule's runs (docs/studies/untangle_extra_iterations.md),
 # untangle alone on held-out colliding realistic meshes, extra_iter=0 then 160, alone (paper-scale run paused),
 # from a frozen worktree.
 M_ROOT=/work/main
