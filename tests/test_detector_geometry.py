@@ -494,3 +494,7 @@ def test_calibration_settings_draw_another_larger_set():
         calibration_settings({**cfg, "calibration": {"seed_offset": 0, "scale": 4, "per_class": 10}})
     with pytest.raises(UserInputError, match="missing"):
         calibration_settings({**cfg, "calibration": {"scale": 4}})
+    assert calibration_settings({**cfg, "calibration": {"seed_offset": 101, "scale": 1, "per_class": None}})[
+        "per_class"] is None  # every clear colliding mesh, as many free
+    with pytest.raises(UserInputError, match="per_class >= 1 or null"):
+        calibration_settings({**cfg, "calibration": {"seed_offset": 101, "scale": 1, "per_class": 0}})

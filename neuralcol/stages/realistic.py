@@ -145,10 +145,12 @@ def calibration_settings(cfg) -> dict:
     if missing:
         raise UserInputError(f"realistic.calibration: missing {sorted(missing)}; give seed_offset, scale and per_class "
                              "(conf/realistic/default.yaml)")
-    if not (int(cal["seed_offset"]) != 0 and float(cal["scale"]) > 0 and int(cal["per_class"]) >= 1):
+    per_class = cal["per_class"]
+    if not (int(cal["seed_offset"]) != 0 and float(cal["scale"]) > 0 and (per_class is None or int(per_class) >= 1)):
         raise UserInputError(f"realistic.calibration={cal}: need seed_offset != 0 (another draw than the test set's), "
-                             "scale > 0 and per_class >= 1")
-    out = {**c, "seed": int(c["seed"]) + int(cal["seed_offset"]), "per_class": int(cal["per_class"])}
+                             "scale > 0 and per_class >= 1 or null (every clear colliding mesh)")
+    out = {**c, "seed": int(c["seed"]) + int(cal["seed_offset"]),
+           "per_class": None if per_class is None else int(per_class)}
     for key in ("n_acap_interp", "n_vertex_interp", "n_perturbed"):
         out[key] = int(round(float(cal["scale"]) * int(c[key])))
     return out

@@ -4,7 +4,7 @@
 # Run it alone on the machine: anything else running beside it inflates the figure. The numba kernels' own cache
 # (neuralcol/collision/kernels/__pycache__) stays warm, as after `make install`'s first run.
 # Output: outputs/threshold/budget_<label>/ (the run), budget_<label>.time (time -v), budget_<label>.log.
-#   research/threshold/budget.sh [LABEL] [EXTRA OVERRIDE...]
+#   research/threshold/budget.sh [rule_v1|rule_v2|defaults] [EXTRA OVERRIDE...]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 label=${1:-rule_v1}
@@ -14,8 +14,13 @@ cache=$(mktemp -d "${TMPDIR:-/tmp}/neuralcol-budget.XXXXXX")
 trap 'rm -rf "$cache"' EXIT
 mkdir -p "$out"
 rm -rf "$out/budget_$label"
-RULE=(realistic.n_acap_interp=6000 realistic.n_vertex_interp=2400 realistic.n_perturbed=2400 realistic.per_class=1000
-      detector.operating_set=realistic_calibration realistic.calibration.scale=1)
+source research/threshold/rules.sh
+case $label in
+  rule_v1) RULE=("${RULE_v1[@]}") ;;
+  rule_v2) RULE=("${RULE_v2[@]}") ;;
+  defaults) RULE=() ;;
+  *) echo "budget.sh: unknown rule '$label'; use rule_v1, rule_v2 or defaults" >&2; exit 2 ;;
+esac
 NEURALCOL_DATA=../shared/data NEURALCOL_PROGRESS=lines /usr/bin/time -v -o "$out/budget_$label.time" \
   .venv/bin/python -m experiments.run seed=0 "${RULE[@]}" "$@" paths.cache_dir="$cache" \
   hydra.run.dir="$out/budget_$label" > "$out/budget_$label.log" 2>&1

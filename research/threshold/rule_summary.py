@@ -1,7 +1,7 @@
-"""The operating threshold's rule v1 read against its criteria (docs/studies/operating_threshold.md), from the
-deciding runs of ``research/threshold/rule_v1.sh``:
+"""An operating threshold rule read against its criteria (docs/studies/operating_threshold.md), from its deciding
+runs (``research/threshold/rule_v1.sh``, ``rule_v2.sh``):
 
-    .venv/bin/python -m research.threshold.rule_v1_summary [--dir outputs/threshold/rule_v1] [--out FILE]
+    .venv/bin/python -m research.threshold.rule_summary [--dir outputs/threshold/rule_v2] [--out FILE]
 
 Per run: the threshold the rule set (on the realistic calibration set apart from D_c) and today's rule's on the same
 run (FNR <= target on D_c's realistic validation rows, recomputed offline from the run's detector), and what each
@@ -48,8 +48,8 @@ def read_run(run_dir: Path, target: float) -> dict:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m research.threshold.rule_v1_summary")
-    ap.add_argument("--dir", type=Path, default=ROOT / "outputs" / "threshold" / "rule_v1")
+    ap = argparse.ArgumentParser(prog="python -m research.threshold.rule_summary")
+    ap.add_argument("--dir", type=Path, default=ROOT / "outputs" / "threshold" / "rule_v2")
     ap.add_argument("--target", type=float, default=0.1)
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args(argv)
