@@ -6,7 +6,7 @@ whose calibration FNR is at most ``--fnr`` (:func:`~neuralcol.metrics.detection.
 ``detector.operating_fnr`` folds into a detector) is applied to the test sets, beside logit 0. It separates the
 operating point's share of a gain from the inputs' share (rule v2, docs/studies/one_detector.md).
 
-    python -m research.operating_point outputs/issue40b/hand_s0 outputs/issue41/hand_cm_s1 --fnr 0.1 [--json OUT]
+    python -m research.operating_point outputs/issue40b/hand_s0 outputs/one_detector/hand_cm_s1 --fnr 0.1 [--json OUT]
 
 A run whose detector already has an operating point (``detector.operating_point`` in its metrics) is scored at
 its own threshold (its logits are shifted already): the row says so.

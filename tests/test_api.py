@@ -487,13 +487,13 @@ def test_pack_run_loads_without_cache_or_data(run_dir, trained, tmp_path, monkey
 
 
 def test_explain_gap_on_a_finished_run(run_dir):
-    """research/issue42/explain_gap.py: the final detector re-scored on the U(Z) test set at logit 0 (undoing the
+    """research/paper_scale/explain_gap.py: the final detector re-scored on the U(Z) test set at logit 0 (undoing the
     operating point folded into its bias) equals the run's own last-round figure; the D_c rows' splits partition the
     store; the slope and the extrapolated size agree with an exact log-linear curve."""
     import h5py
     import numpy as np
 
-    from research.issue42.explain_gap import explain, scored, size_to_reach, slope, table
+    from research.paper_scale.explain_gap import explain, scored, size_to_reach, slope, table
 
     out = explain(run_dir, None, paper=(0.9383, 0.0515))  # (proc_hand is not in the paper's Table 3)
     head, _, line = table([out]).splitlines()  # one cell per column (a stray "test" column shifted the rest)
@@ -545,12 +545,12 @@ def test_each_round_keeps_the_detector_it_was_tested_with(run_dir, trained):
 
 
 def test_handling_curve_from_the_saved_rounds(run_dir, trained):
-    """research/issue42/handling_curve.py: one point per round; the last round's saved detector guides the handler
+    """research/paper_scale/handling_curve.py: one point per round; the last round's saved detector guides the handler
     exactly as the run's final ``detector.pt`` does (the tiny run has no operating point: the same network)."""
     from neuralcol.handler.resolve import alm_settings
     from neuralcol.samples.oracle import LatentOracle
     from neuralcol.stages.handler import evaluate_handler
-    from research.issue42.handling_curve import curve, handler_inputs
+    from research.paper_scale.handling_curve import curve, handler_inputs
 
     assert trained.metrics["detector"].get("operating_point") is None
     out = curve(run_dir, n_inputs=4, workers=0)
@@ -564,12 +564,12 @@ def test_handling_curve_from_the_saved_rounds(run_dir, trained):
 
 
 def test_round_gap_scores_a_saved_round_and_refuses_a_wrong_test_set(run_dir, trained, capsys, tmp_path):
-    """research/issue42/round_gap.py on round 1 of the tiny run: the saved detector's test accuracy is the round's
+    """research/paper_scale/round_gap.py on round 1 of the tiny run: the saved detector's test accuracy is the round's
     record (the script checks it and stops on a mismatch, e.g. another latent space's test set)."""
     import json
     import shutil
 
-    from research.issue42.round_gap import main as round_gap
+    from research.paper_scale.round_gap import main as round_gap
 
     cache = trained.cfg.paths.cache_dir
     assert round_gap([str(run_dir), "1", "--paper-fnr", "0.2", "--cache-dir", cache]) == 0

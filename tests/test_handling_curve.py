@@ -1,4 +1,4 @@
-"""research/issue42/handling_curve.py's summary over runs (paper Fig. 5): means over seeds, error bars, --from-json.
+"""research/paper_scale/handling_curve.py's summary over runs (paper Fig. 5): means over seeds, error bars, --from-json.
 
 The measuring part (``curve``) is tested on a trained tiny run in test_api.py; these cases need no run."""
 
@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from research.issue42.handling_curve import by_method, main
+from research.paper_scale.handling_curve import by_method, main
 
 
 def _result(run, method, points, n=1000):
