@@ -14,7 +14,6 @@ need as arguments. File names come from :mod:`neuralcol.rundir`.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from functools import cached_property
 from pathlib import Path
@@ -36,6 +35,7 @@ from neuralcol.stages.autoencoder import reference_spaces, train_or_load_latent_
 from neuralcol.stages.box_check import probe_share
 from neuralcol.stages.box_fit import fit_box, fitted_key, set_scaled_box
 from neuralcol.utils.files import write_json_atomic
+from neuralcol.utils.hashing import settings_key
 
 
 class LatentStage(NamedTuple):
@@ -141,7 +141,7 @@ class RunContext:
         band, shrink, grow = (list(map(float, bf[k])) for k in ("band", "shrink", "grow"))
         n, seed = int(bc.n_probe), int(bc.seed)
         settings = {"band": band, "shrink": shrink, "grow": grow, "n_probe": n, "seed": seed}
-        tag = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:12]
+        tag = settings_key(settings, 12)
         fit_file = self.samples_dir(labeler) / f"box_fit_{tag}.json"
         if fit_file.is_file():
             fit = json.loads(fit_file.read_text())

@@ -8,8 +8,6 @@ generated on first use and cached.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +19,7 @@ from neuralcol.errors import DatasetNotFoundError, MeshFileError
 from neuralcol.geometry.mesh_io import MESH_SUFFIXES, natural_key, read_mesh
 from neuralcol.geometry.topology import check_faces, check_vertices
 from neuralcol.utils.files import atomic_path
+from neuralcol.utils.hashing import settings_key
 
 ARRAY_SUFFIXES = (".h5", ".hdf5", ".npz")
 DEFAULT_REL_AREA_TOL = 1e-10
@@ -253,7 +252,7 @@ def load_procedural_dataset(
     if n_poses < 1:
         raise ValueError(f"n_poses={n_poses}: must be >= 1")
     geometry = dict(geometry or {})
-    key = hashlib.sha1(json.dumps([name, n_poses, seed, geometry], sort_keys=True).encode()).hexdigest()[:10]
+    key = settings_key([name, n_poses, seed, geometry], 10)
     cache = Path(cache_dir).expanduser() / f"{name}_n{n_poses}_s{seed}_{key}.npz" if cache_dir else None
     if cache is not None and cache.is_file():
         try:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 from pathlib import Path
 from typing import NamedTuple
@@ -15,6 +13,7 @@ from neuralcol.data.datasets import MeshDataset
 from neuralcol.geometry.acap import ACAP, FEATURE_DIM
 from neuralcol.nn.normalizer import FeatureNormalizer
 from neuralcol.utils.files import atomic_path
+from neuralcol.utils.hashing import settings_key
 
 
 class DatasetFeatures(NamedTuple):
@@ -66,11 +65,9 @@ def dataset_features(
     idx = np.arange(n)[fit_index] if fit_index is not None else np.arange(n)
     cache = None
     if cache_dir is not None:
-        h = hashlib.sha1()
-        h.update(verts.numpy().tobytes())
-        h.update(dataset.faces.cpu().numpy().tobytes())
-        h.update(json.dumps([reference_index, acap_kwargs], sort_keys=True).encode())
-        cache = Path(cache_dir).expanduser() / f"acap_{h.hexdigest()[:16]}.npz"
+        key = settings_key([reference_index, acap_kwargs], 16,
+                           data=[verts.numpy().tobytes(), dataset.faces.cpu().numpy().tobytes()])
+        cache = Path(cache_dir).expanduser() / f"acap_{key}.npz"
     feats = None
     from_cache = False
     if cache is not None and cache.is_file():

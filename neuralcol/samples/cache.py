@@ -7,8 +7,6 @@ uniform samples (``uniform_s<seed>.h5``) and the realistic sets' caches.
 
 from __future__ import annotations
 
-import hashlib
-import json
 from pathlib import Path
 
 from neuralcol.rundir import CacheDir
@@ -16,6 +14,7 @@ from neuralcol.samples.oracle import LatentOracle
 from neuralcol.samples.uniform import labeled_uniform_rows
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.files import write_json_atomic
+from neuralcol.utils.hashing import settings_key
 
 
 def samples_cache_dir(cache_dir: str | Path, latent_key: str, labeler) -> Path:
@@ -27,7 +26,7 @@ def samples_cache_dir(cache_dir: str | Path, latent_key: str, labeler) -> Path:
     kind = getattr(labeler, "label_kind", "exact")
     if kind != "exact":  # another definition of the labels (e.g. python-fcl's): never mixed with ours
         settings["labels"] = str(kind)
-    key = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
+    key = settings_key(settings)
     folder = CacheDir(cache_dir).samples(key)
     folder.mkdir(parents=True, exist_ok=True)
     if not (folder / "labeler.json").is_file():

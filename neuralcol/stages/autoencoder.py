@@ -7,7 +7,6 @@ settings, the autoencoder config and the seed, so a later run with the same inpu
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from pathlib import Path
@@ -35,6 +34,7 @@ from neuralcol.nn.normalizer import FeatureNormalizer
 from neuralcol.nn.pca_space import BASES, PCALatentSpace, centred_vertices, pca_space
 from neuralcol.rundir import CacheDir
 from neuralcol.utils.config import as_dict
+from neuralcol.utils.hashing import settings_key
 from neuralcol.utils.progress import trainer_progress
 from neuralcol.utils.threads import threads_pinned
 
@@ -152,12 +152,8 @@ def autoencoder_cache_key(ds: MeshDataset, reference_index: int, acap_kwargs: di
                           latent_cfg: dict, seed: int) -> str:
     """Hash of everything the trained latent space depends on (meshes, ACAP settings, config, seed)."""
     ae_cfg = _key_config(ae_cfg)
-    h = hashlib.sha1()
-    h.update(ds.vertices.detach().cpu().numpy().tobytes())
-    h.update(ds.faces.cpu().numpy().tobytes())
-    h.update(json.dumps([reference_index, acap_kwargs, ae_cfg, latent_cfg, seed], sort_keys=True,
-                        default=str).encode())
-    return h.hexdigest()[:16]
+    return settings_key([reference_index, acap_kwargs, ae_cfg, latent_cfg, seed], 16, default=str,
+                        data=[ds.vertices.detach().cpu().numpy().tobytes(), ds.faces.cpu().numpy().tobytes()])
 
 
 def _scheduler(ae_cfg: dict, epochs: int):

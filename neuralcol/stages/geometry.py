@@ -24,6 +24,7 @@ import torch
 
 from neuralcol.nn.part_geometry import PartGeometry, choose_geometry, geometry_of_codes
 from neuralcol.utils.files import atomic_path
+from neuralcol.utils.hashing import content_key
 from neuralcol.utils.progress import progress_bar
 
 INPUTS = ("latent", "code_and_mesh")  # detector.inputs
@@ -89,10 +90,8 @@ def full_labels(pool, vertices: np.ndarray, samples_dir: str | Path) -> tuple[np
     labeled by ``pool`` once and then read from ``samples_dir`` (keyed by the labeler's settings, as that folder
     is, and by the meshes' bytes): every later run of the same latent space and settings skips the labeling
     (on anny_body ~0.4 s per mesh)."""
-    import hashlib
-
     v = np.ascontiguousarray(vertices, dtype=np.float64)
-    key = hashlib.sha1(v.tobytes() + str(v.shape).encode()).hexdigest()[:16]
+    key = content_key([v.tobytes(), str(v.shape).encode()])
     path = Path(samples_dir) / f"realistic_train_full_{key}.npz"
     if path.is_file():
         with np.load(path, allow_pickle=False) as f:

@@ -14,7 +14,6 @@ final detector on it next to U(Z):
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from pathlib import Path
@@ -38,6 +37,7 @@ from neuralcol.nn.part_geometry import code_mesh_logits
 from neuralcol.stages.validate import LABEL_CLEARANCES
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.files import atomic_path
+from neuralcol.utils.hashing import settings_key
 
 BUILD_KEYS = ("seed", "n_acap_interp", "n_vertex_interp", "n_perturbed", "t_range", "perturb_scale", "clear_eps",
               "per_class")
@@ -101,7 +101,7 @@ def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Pa
         settings["sources"] = [int(i) for i in np.asarray(sources).reshape(-1)]
     if clearance_limit is not None:
         settings["clearance_limit"] = float(clearance_limit)
-    key = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
+    key = settings_key(settings)
     path = Path(folder) / f"{tag}_{key}.npz"
     if path.is_file():
         with np.load(path) as z:
