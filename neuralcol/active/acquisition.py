@@ -28,6 +28,7 @@ import torch
 from neuralcol.active.newton import Projection, newton_project
 from neuralcol.collision.labeler import SUBSET_BOUNDARY
 from neuralcol.metrics.projection import boundary_shares, projection_quality
+from neuralcol.nn.inference import batched_logits
 from neuralcol.samples.oracle import LatentOracle
 from neuralcol.samples.store import CollisionStore, Origin
 from neuralcol.samples.uniform import uniform_rows
@@ -136,12 +137,7 @@ class ProjectedAcquisition(UniformAcquisition):
         gen = torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
         u = torch.rand(self.candidates * n, len(self.box_lo), generator=gen)
         cand = self.box_lo + u * (self.box_hi - self.box_lo)
-        dev = next(net.parameters()).device
-        was_training = net.training
-        net.eval()
-        with torch.no_grad():
-            logit = torch.cat([net(c.to(dev)).logit.cpu() for c in cand.split(65536)])
-        net.train(was_training)
+        logit = batched_logits(net, cand, batch=65536)
         pick = torch.argsort(logit.abs(), stable=True)[:n]
         return cand[pick]
 

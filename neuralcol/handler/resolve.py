@@ -18,6 +18,7 @@ import torch
 
 from neuralcol.handler.alm import ALMSettings, Resolution, alm_resolve
 from neuralcol.handler.objectives import LatentObjective
+from neuralcol.nn.inference import batched_logits
 from neuralcol.utils.config import as_dict
 
 ANCHORS = ("median", "none")
@@ -106,14 +107,8 @@ def verified_escalation(handle: Callable[[np.ndarray, float], Resolution],
 
 def detector_logits(net: torch.nn.Module, z: torch.Tensor, batch: int = 4096) -> np.ndarray:
     """(n,) float64 logits of the latent detector on codes (eval mode, no gradient; the net left as it was)."""
-    was = net.training
-    net.eval()
-    dev = next(net.parameters()).device
     z = torch.as_tensor(z).detach().float()
-    with torch.no_grad():
-        out = [net(c.to(dev)).logit.cpu() for c in z.split(batch)]
-    net.train(was)
-    return torch.cat(out).double().numpy() if out else np.zeros(0)
+    return batched_logits(net, z, batch=batch).double().numpy()
 
 
 class CertifiedLabel:

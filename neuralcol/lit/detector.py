@@ -8,6 +8,7 @@ import torch
 
 from neuralcol.lit.base import SplitStepModule
 from neuralcol.nn.detector import CollisionDetector, detector_losses
+from neuralcol.nn.inference import batched_logits
 from neuralcol.nn.part_geometry import DetectorOnCodes
 
 
@@ -118,16 +119,9 @@ class DetectorLitModule(SplitStepModule):
             for opt in self.trainer.optimizers:
                 opt.state.clear()
 
-    @torch.no_grad()
     def predict_logits(self, z: torch.Tensor, batch: int = 65536) -> torch.Tensor:
         """Logits of many codes (B,), evaluated in batches on the module's device, returned on the CPU."""
-        was_training = self.net.training
-        self.net.eval()
-        dev = next(self.net.parameters()).device
-        net = self.on_codes
-        out = torch.cat([net(c.to(dev)).logit.cpu() for c in z.split(batch)]) if len(z) else torch.zeros(0)
-        self.net.train(was_training)
-        return out
+        return batched_logits(self.on_codes, z, batch=batch, mode_of=self.net)
 
 
 def detector_module(net: CollisionDetector, det: dict, w_b: float, lr: float, space=None) -> DetectorLitModule:

@@ -35,6 +35,7 @@ from neuralcol.geometry.contact_pairs import (
     fold_pair_scores,
     hop_neighbourhood,
 )
+from neuralcol.nn.inference import batched_logits
 
 
 def close_pair_scores(meshes: np.ndarray, collides: np.ndarray, rest: np.ndarray, faces: np.ndarray,
@@ -283,11 +284,8 @@ def mesh_pair_features(geometry: PartGeometry, vertices: np.ndarray, block: int 
 def code_mesh_logits(detector, z: np.ndarray, vertices: np.ndarray, block: int = 1024) -> np.ndarray:
     """A detector over code and mesh on meshes given whole: ``detector(z, pair features of vertices)`` (M,) logits,
     ``z`` (M, D) their codes (encode(mesh)), in blocks, eval mode, no gradients."""
-    was = detector.training
-    detector.eval()
     feats = mesh_pair_features(detector.geometry, vertices, block)
-    with torch.no_grad():
-        out = [detector(torch.as_tensor(np.asarray(z[i:i + block], np.float32)),
-                        torch.as_tensor(feats[i:i + block])).logit for i in range(0, len(z), block)]
-    detector.train(was)
-    return torch.cat(out).numpy() if out else np.zeros(0, np.float32)
+    if len(z) == 0:
+        return np.zeros(0, np.float32)
+    return batched_logits(detector, torch.as_tensor(np.asarray(z, np.float32)), torch.as_tensor(feats),
+                          batch=block).numpy()

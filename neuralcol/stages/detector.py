@@ -26,6 +26,7 @@ from neuralcol.lit.detector import DetectorLitModule, detector_module
 from neuralcol.metrics.detection import detection_metrics, fnr_interval, fnr_threshold, mean_fnr_threshold
 from neuralcol.metrics.tensorboard import log_round_examples
 from neuralcol.nn.detector import CollisionDetector, build_detector, net_widths, save_detector
+from neuralcol.nn.inference import batched_logits
 from neuralcol.nn.part_geometry import DetectorOnCodes, mesh_pair_features
 from neuralcol.rundir import RunDir
 from neuralcol.samples.cache import label_failures, samples_cache_dir, shared_test_set
@@ -64,12 +65,7 @@ def predict_test_set(net: CollisionDetector, test: CollisionRows, batch: int = 4
         prob (N,) float32 collision probability, logit (N,) float32 (the metrics' prediction is logit > 0),
         pd (N,) float32, pd_sub (N, K) float32, collides (N,) bool.
     """
-    was_training = net.training
-    net.eval()
-    z = torch.as_tensor(np.asarray(test.z, np.float32), device=next(net.parameters()).device)
-    with torch.no_grad():
-        logit = torch.cat([net(c).logit.cpu() for c in z.split(batch)]) if len(z) else torch.zeros(0)
-    net.train(was_training)
+    logit = batched_logits(net, torch.as_tensor(np.asarray(test.z, np.float32)), batch=batch)
     return {"prob": torch.sigmoid(logit).numpy().astype(np.float32), "logit": logit.numpy().astype(np.float32),
             "pd": np.asarray(test.pd, np.float32), "pd_sub": np.asarray(test.pd_sub, np.float32),
             "collides": np.asarray(test.collides, bool)}
@@ -172,11 +168,7 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
             raise UserInputError(f"detector.operating_set={where} needs realistic training meshes among D_c's rows "
                                  "(detector.inputs=code_and_mesh with detector.geometry.realistic_rows=true); use "
                                  "detector.operating_set=calibration")
-        with torch.no_grad():
-            was = net.training
-            net.eval()
-            logit = net(torch.as_tensor(rows.z), torch.as_tensor(rows.geometry)).logit.numpy()
-            net.train(was)
+        logit = batched_logits(net, torch.as_tensor(rows.z), torch.as_tensor(rows.geometry), batch=None).numpy()
         sets.append((logit, np.asarray(rows.collides, bool)))
     if where == "realistic_calibration":
         if calibration_meshes is None or len(calibration_meshes[0]) == 0:
