@@ -20,7 +20,8 @@ from omegaconf import OmegaConf
 from neuralcol.api import load_run
 from neuralcol.handler.contact_repair import repair_from_config
 from neuralcol.handler.resolve import alm_settings
-from neuralcol.stages.realistic import evaluate_realistic, evaluation_limit, realistic_set
+from neuralcol.samples.realistic import evaluation_limit, realistic_set
+from neuralcol.stages.realistic import evaluate_realistic
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -24,7 +24,8 @@ from neuralcol.data.realistic import clear_mask
 from neuralcol.metrics.reconstruction import relative_vertex_error
 from neuralcol.nn.pca_space import pca_space
 from neuralcol.pipeline import RunContext
-from neuralcol.stages.realistic import realistic_set, round_trip_agreement, round_trip_pd
+from neuralcol.samples.realistic import realistic_set
+from neuralcol.stages.realistic import round_trip_agreement, round_trip_pd
 from neuralcol.utils.threads import pin_threads
 
 CONF = Path(__file__).resolve().parents[1] / "conf"

@@ -21,9 +21,10 @@ from types import SimpleNamespace
 import h5py
 from omegaconf import OmegaConf
 
+from experiments.reporting.summary import speed_accuracy_table
 from neuralcol.api.run import load_run
 from neuralcol.nn.part_geometry import DetectorOnCodes
-from neuralcol.stages.speed import measure_speed_accuracy, speed_accuracy_table
+from neuralcol.stages.speed import measure_speed_accuracy
 from neuralcol.utils.threads import pin_threads
 
 

@@ -155,7 +155,7 @@ def test_labeled_uniform_store_extends_and_refuses_another_seed(tmp_path):
 # ----------------------------------------------------------------------------- the rounds
 def test_active_grows_dc_by_exactly_the_labeled_samples(tmp_path):
     out, oracle = _train(tmp_path, "active")
-    rounds = out["rounds"]
+    rounds = out.rounds
     assert [r["round"] for r in rounds] == [0, 1, 2]
     assert [r["dataset_size"] for r in rounds] == [200, 300, 400]
     with CollisionStore(tmp_path / "run" / "dc.h5", D, K) as store:
@@ -176,7 +176,7 @@ def test_active_grows_dc_by_exactly_the_labeled_samples(tmp_path):
     for key in ("dataset_size", "accuracy", "fnr", "fpr", "balanced_accuracy", "base_rate", "label_seconds",
                 "train_seconds"):
         assert all(key in r for r in rounds)
-    assert out["detector"]["stopped_by"] == "max_rounds"
+    assert out.summary["stopped_by"] == "max_rounds"
     saved = json.loads((tmp_path / "run" / "detector_rounds.json").read_text())
     assert saved["finished"] and saved["rounds"] == json.loads(json.dumps(rounds))
     net, meta = load_detector(tmp_path / "run" / "detector.pt")
@@ -189,7 +189,7 @@ def test_active_grows_dc_by_exactly_the_labeled_samples(tmp_path):
     np.testing.assert_array_equal(pred["collides"], pred["pd"] > 0)
     assert detection_metrics(pred["logit"] > 0, pred["collides"])["accuracy"] == rounds[-1]["accuracy"]
     np.testing.assert_allclose(pred["prob"], 1 / (1 + np.exp(-pred["logit"].astype(np.float64))), atol=1e-6)
-    timing = out["detector"]["inference_us"]
+    timing = out.summary["inference_us"]
     assert timing["batch_1"] > 0 and timing["batch_4096"] > 0 and timing["batch_4096"] < timing["batch_1"]
     assert saved["summary"]["inference_us"] == timing
 
@@ -209,12 +209,12 @@ def test_baselines_train_on_the_same_uniform_samples_at_equal_sizes(tmp_path):
     labeled_after_supv = oracle.labeled
     bd, _ = _train(tmp_path, "supv_bd", run="bd", oracle=oracle)
     assert oracle.labeled == labeled_after_supv, "supv_bd reuses the pool and the test set"
-    assert [r["dataset_size"] for r in supv["rounds"]] == [r["dataset_size"] for r in bd["rounds"]] == [200, 300, 400]
+    assert [r["dataset_size"] for r in supv.rounds] == [r["dataset_size"] for r in bd.rounds] == [200, 300, 400]
     with CollisionStore(tmp_path / "supv" / "dc.h5", D, K) as a, CollisionStore(tmp_path / "bd" / "dc.h5", D, K) as b:
         ra, rb = a.read(), b.read()
     assert np.array_equal(ra.z, rb.z) and (ra.origin == 0).all()
     # a supervised detector on this easy problem is far better than the majority class
-    last = bd["rounds"][-1]
+    last = bd.rounds[-1]
     assert last["accuracy"] > last["majority_accuracy"] + 0.1
 
 
@@ -240,12 +240,12 @@ def test_interrupted_run_resumes_after_the_last_finished_round(tmp_path, monkeyp
     assert not partial["finished"] and [r["round"] for r in partial["rounds"]] == [0, 1]
     monkeypatch.setattr(acquisition.ProjectedAcquisition, "__call__", real)
     resumed, _ = _train(tmp_path, "active", run="cut")
-    assert resumed["detector"]["resumed"] is True
-    assert [r["dataset_size"] for r in resumed["rounds"]] == [200, 300, 400]
+    assert resumed.summary["resumed"] is True
+    assert [r["dataset_size"] for r in resumed.rounds] == [200, 300, 400]
     keys = ("round", "dataset_size", "accuracy", "fnr", "fpr")
-    assert [[r[k] for k in keys] for r in resumed["rounds"][:2]] == [[r[k] for k in keys] for r in partial["rounds"]]
+    assert [[r[k] for k in keys] for r in resumed.rounds[:2]] == [[r[k] for k in keys] for r in partial["rounds"]]
     # training is deterministic, so the resumed run ends where the uninterrupted one did
-    assert [r["accuracy"] for r in resumed["rounds"]] == [r["accuracy"] for r in full["rounds"]]
+    assert [r["accuracy"] for r in resumed.rounds] == [r["accuracy"] for r in full.rounds]
     with CollisionStore(tmp_path / "cut" / "dc.h5", D, K) as store:
         rows = store.read()
     assert np.bincount(rows.round).tolist() == [200, 100, 100]
@@ -254,5 +254,9 @@ def test_interrupted_run_resumes_after_the_last_finished_round(tmp_path, monkeyp
         np.testing.assert_array_equal(store.read().z[:300], rows.z[:300])
     # a finished run is not retrained
     again, _ = _train(tmp_path, "active", run="cut")
-    assert again["detector"]["resumed"] == "already finished" and again["rounds"] == json.loads(
-        json.dumps(resumed["rounds"]))
+    assert again.summary["resumed"] == "already finished" and again.rounds == json.loads(
+        json.dumps(resumed.rounds))
+    # the finished detector comes from detector.pt then; within a run it is the trained net itself, the same detector
+    z = torch.rand(16, D, generator=torch.Generator().manual_seed(0)) * 2 - 1
+    with torch.no_grad():
+        torch.testing.assert_close(again.net(z).logit, resumed.net(z).logit, rtol=0, atol=0)

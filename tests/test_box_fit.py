@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from neuralcol.stages.box_fit import band_distance, check_ladder, fit_box, fitted_key, scaled_box
+from neuralcol.stages.box_fit import band_distance, check_ladder, fit_box, fitted_key, fitted_space, scaled_box
 
 SHRINK, GROW = [0.9, 0.8, 0.7, 0.6, 0.5], [1.25, 1.5, 2.0]
 
@@ -60,8 +60,11 @@ def test_too_many_collisions_shrink_to_the_first_factor_in_the_band():
     fit = fit_box(space, probe, [0.1, 0.55], SHRINK, GROW)
     assert calls == [1.0, 0.9, 0.8, 0.7] and fit["factor"] == 0.7 and fit["in_band"]
     assert [t["factor"] for t in fit["trials"]] == calls
+    # the space itself keeps its box; the fitted space is a new object with the scaled one
+    assert torch.equal(space.box_lo, torch.tensor([-1.0, 2.0])) and torch.equal(space.box_hi, torch.tensor([3.0, 4.0]))
+    fitted = fitted_space(space, fit["factor"])
     lo, hi = scaled_box(torch.tensor([-1.0, 2.0]), torch.tensor([3.0, 4.0]), 0.7)
-    assert torch.allclose(space.box_lo, lo) and torch.allclose(space.box_hi, hi)
+    assert fitted is not space and torch.allclose(fitted.box_lo, lo) and torch.allclose(fitted.box_hi, hi)
     assert fitted_key("abc", 0.7) == "abc-box0.7"
 
 
@@ -95,13 +98,13 @@ def test_bad_settings_name_themselves(band, shrink, grow, setting):
 
 def test_run_context_fits_caches_and_saves_the_fitted_space(tmp_path, scape_dir):
     """On SCAPE's PCA space (fit in milliseconds): a band below the paper box's share makes it shrink; the fitted
-    space is saved under its own key and loads with the fitted box; a second context reads the cached fit and labels
-    nothing."""
+    space is a new object (the paper box's space keeps its box), saved under its own key, and loads with the fitted
+    box; a second context reads the cached fit and labels nothing."""
     from hydra import compose, initialize_config_dir
 
-    from experiments.run import box_stage
     from neuralcol.nn.latent_space import LatentSpace
     from neuralcol.pipeline import RunContext
+    from neuralcol.stages.box_check import box_stage
 
     overrides = ["dataset=scape", "autoencoder=pca", "detector=tiny", f"paths.data_dir={scape_dir.parent}",
                  f"paths.cache_dir={tmp_path}/cache", "labeling.pool.workers=0", "labeling.pool.progress=false",
@@ -113,17 +116,21 @@ def test_run_context_fits_caches_and_saves_the_fitted_space(tmp_path, scape_dir)
     box0 = (ctx.space.box_lo.clone(), ctx.space.box_hi.clone())
     labeler = ctx.sample_labeler()
     with ctx.pool(labeler) as pool:
-        fit = ctx.fit_box(pool, labeler)
-        assert ctx.fit_box(pool, labeler) is fit  # fitted once per context
-        probe = box_stage(ctx.space, {}, pool, cfg, fit)
+        fitted = ctx.fit_box(pool, labeler)
+        assert ctx.fit_box(pool, labeler) is fitted  # fitted once per context
+        fit = fitted.report["box_fit"]
+        probe = box_stage(fitted.space, {}, pool, cfg, fit)
     shares = [t["collision_share"] for t in fit["trials"]]
     assert shares[0] > 0.3 and fit["factor"] < 1.0, fit  # SCAPE's vertex-PCA box: ~65 % collide
     chosen = next(t for t in fit["trials"] if t["factor"] == fit["factor"])
     assert probe["space"]["collision_share"] == chosen["collision_share"]  # the fit's probe, not labeled again
-    key = ctx.latent_space().report["cache_key"]
-    assert key == f"{key0}-box{fit['factor']:g}" and ctx.latent_space().report["box_fit"] is fit
+    key = fitted.report["cache_key"]
+    assert key == f"{key0}-box{fit['factor']:g}" and ctx.latent_space().report["cache_key"] == key0
     lo, hi = scaled_box(*box0, fit["factor"])
-    assert torch.allclose(ctx.space.box_lo, lo) and torch.allclose(ctx.space.box_hi, hi)
+    assert torch.allclose(fitted.space.box_lo, lo) and torch.allclose(fitted.space.box_hi, hi)
+    assert fitted.space is not ctx.space and torch.equal(ctx.space.box_lo, box0[0])  # the paper box is untouched
+    assert torch.equal(ctx.space.box_hi, box0[1]) and ctx.oracle(pool, fitted).space is fitted.space
+    assert ctx.samples_dir(labeler, fitted).name != ctx.samples_dir(labeler).name
     saved = LatentSpace.load(ctx.cache.latent_space(key))
     assert torch.allclose(saved.box_lo, lo) and torch.allclose(saved.box_hi, hi)
     assert saved.meta["box_fit"] == {"factor": fit["factor"], "from": key0}
@@ -133,6 +140,6 @@ def test_run_context_fits_caches_and_saves_the_fitted_space(tmp_path, scape_dir)
     again = RunContext(cfg)
     with again.pool(labeler) as pool:
         pool.label_report = None  # labeling anything now would raise: the fit must come from the cache
-        fit2 = again.fit_box(pool, labeler)
-    assert fit2["factor"] == fit["factor"] and again.latent_space().report["cache_key"] == key
-    assert torch.allclose(again.space.box_lo, lo)
+        fitted2 = again.fit_box(pool, labeler)
+    assert fitted2.report["box_fit"]["factor"] == fit["factor"] and fitted2.report["cache_key"] == key
+    assert torch.allclose(fitted2.space.box_lo, lo)

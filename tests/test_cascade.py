@@ -235,7 +235,8 @@ SCHEMA_TARGET = {"target_fnr", "lo", "hi", "calibration", "test", "realistic", "
 
 
 def test_cascade_report_schema_and_speed():
-    from neuralcol.stages.cascade import cascade_report, cascade_table, choose_bands
+    from experiments.reporting.summary import cascade_table
+    from neuralcol.stages.cascade import cascade_report, choose_bands
 
     rng = np.random.default_rng(1)
     y_cal = rng.random(500) < 0.3
@@ -266,7 +267,7 @@ def test_cascade_report_schema_and_speed():
 
 
 def test_cascade_settings_are_checked():
-    from neuralcol.stages.validate import config_problems
+    from neuralcol.pipeline.validate import config_problems
 
     assert config_problems(_compose(["detector=tiny"])) == []
     problems = config_problems(_compose([

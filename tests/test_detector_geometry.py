@@ -231,8 +231,14 @@ def _strip_space(dim: int = 2, seed: int = 7) -> LinearSpace:
 def test_run_geometry_is_saved_reloaded_and_featurizes_codes_and_meshes(tmp_path, monkeypatch, capsys):
     """The run stage's pair choice (bootstrap codes + realistic meshes) reloads as the same geometry (a resumed run
     builds the same detector); codes and whole meshes give the same features as the module's own functions."""
-    from neuralcol.nn.part_geometry import code_mesh_logits, mesh_pair_features
-    from neuralcol.stages.geometry import RealisticRows, choose_run_geometry, codes_featurizer, load_run_geometry
+    from neuralcol.nn.part_geometry import (
+        choose_run_geometry,
+        code_mesh_logits,
+        codes_featurizer,
+        load_run_geometry,
+        mesh_pair_features,
+    )
+    from neuralcol.samples.realistic import RealisticRows
 
     space = _strip_space()
     folded = REST.copy()
@@ -367,7 +373,7 @@ def test_operating_point_is_set_on_its_rows_and_folded_into_the_bias(tmp_path, w
     round's test metrics become those at it (the old ones under at_logit_0)."""
     from neuralcol.errors import UserInputError
     from neuralcol.samples.store import CollisionRows, CollisionStore, Origin
-    from neuralcol.stages import cascade
+    from neuralcol.stages import detector as detector_stage
     from neuralcol.stages.detector import operating_point
 
     torch.manual_seed(2)
@@ -385,7 +391,7 @@ def test_operating_point_is_set_on_its_rows_and_folded_into_the_bias(tmp_path, w
                          np.zeros(n, np.int16), np.full(n, Origin.REALISTIC, np.int8), np.arange(n), feats)
     store = CollisionStore(tmp_path / "dc.h5", 2, 2, n_pairs=det.geometry.n_pairs)
     store.append(z, pd, rows.pd_sub, collides, rows.subset, 0, Origin.REALISTIC, feats)
-    monkeypatch.setattr(cascade, "calibration_set", lambda *a: (rows, 0.0, 0))
+    monkeypatch.setattr(detector_stage, "calibration_set", lambda *a: (rows, 0.0, 0))
     last = {"accuracy": 0.5, "fnr": 0.5}
     cfg = {"operating_fnr": 0.1, "operating_set": where}
     before = det(torch.as_tensor(z), torch.as_tensor(feats)).logit.detach()
@@ -422,7 +428,7 @@ def test_full_labels_of_the_realistic_training_meshes_are_labeled_once(tmp_path)
     """A second run of the same meshes reads their full labels from the samples folder; other meshes are labeled."""
     from types import SimpleNamespace
 
-    from neuralcol.stages.geometry import full_labels
+    from neuralcol.samples.realistic import full_labels
 
     calls = []
 
@@ -482,7 +488,7 @@ def test_operating_point_on_a_realistic_calibration_set(tmp_path):
 
 def test_calibration_settings_draw_another_larger_set():
     from neuralcol.errors import UserInputError
-    from neuralcol.stages.realistic import calibration_settings
+    from neuralcol.samples.realistic import calibration_settings
 
     cfg = {"seed": 0, "n_acap_interp": 1500, "n_vertex_interp": 600, "n_perturbed": 600, "per_class": 150,
            "clear_eps": 10, "calibration": {"seed_offset": 101, "scale": 4, "per_class": 1000}}

@@ -45,12 +45,12 @@ def test_projection_quality_by_hand():
 def test_active_rounds_record_projection_quality(tmp_path):
     """Every acquiring round of `active` records where its projected samples landed (metrics.json -> projection)."""
     out, _ = _train(tmp_path, "active", max_rounds=1)
-    q = out["rounds"][0]["projection"]
+    q = out.rounds[0]["projection"]
     assert q["n"] == 50 and 0 <= q["within_2eps"] <= 1 and "start" in q
     # the ball's projections land far closer to |z| = RADIUS than the D_c rows they started from
     assert q["within_2eps"] > q["start"]["within_2eps"]
     assert q["moved_level1"] > 0 and q["moved_level2"] > 0
-    assert "projection" not in out["rounds"][-1], "the last round projects nothing"
+    assert "projection" not in out.rounds[-1], "the last round projects nothing"
 
 
 # ----------------------------------------------------------------------------- targets and schedules
@@ -90,7 +90,7 @@ def test_rounds_run_the_step_floor(tmp_path):
     out = train_detector(oracle.space, oracle, det, method, "ball", seed=0, cache_dir=tmp_path / "cache",
                          run_dir=tmp_path / "run")
     # round 1: 300 rows, 240 training rows, batch 64 -> 4 batches per epoch -> 25 epochs (> finetune_epochs 10)
-    assert [r["epochs"] for r in out["rounds"]] == [40, 25]
+    assert [r["epochs"] for r in out.rounds] == [40, 25]
 
 
 # ----------------------------------------------------------------------------- latent diagnostics

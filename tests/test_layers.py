@@ -1,6 +1,6 @@
-"""The package's layers point down only (issue 28): read every import in neuralcol/ (lazy ones too) and check
-that no module imports a package above its own, no private name crosses a package, neuralcol never imports the
-entry points, and the module import graph has no cycle."""
+"""The package's layers point down only: read every import in neuralcol/ (lazy ones too) and check that no module
+imports a package above its own, no private name crosses a package, no stage module imports another stage module,
+neuralcol never imports the entry points, and the module import graph has no cycle."""
 
 from __future__ import annotations
 
@@ -91,6 +91,28 @@ def test_imports_point_down_and_stay_public():
     assert not problems, "\n".join(problems)
 
 
+def _stage_imports(module: str, imports) -> list[str]:
+    """The other stage modules ``module`` (one of ``neuralcol.stages``) imports, as ``file:line: target``."""
+    out = []
+    for target, names, line, path in imports:
+        if target == "neuralcol.stages":  # from neuralcol.stages import detector
+            hits = [f"{target}.{n}" for n in names if f"{target}.{n}" != module]
+        elif target.startswith("neuralcol.stages.") and target != module:
+            hits = [target]
+        else:
+            hits = []
+        out += [f"{path.relative_to(ROOT.parent)}:{line}: {module} imports {h}" for h in hits]
+    return out
+
+
+def test_stage_modules_import_no_other_stage():
+    """Each module of neuralcol/stages/ is one stage's logic: it imports lower layers only (shared helpers live
+    there, e.g. neuralcol/samples/, neuralcol/nn/), and the pipeline (neuralcol/pipeline/) wires the stages."""
+    problems = [p for module, imports in _graph().items() if _package(module) == "stages"
+                for p in _stage_imports(module, imports)]
+    assert not problems, "\n".join(problems)
+
+
 def test_no_import_cycle():
     graph = _graph()
     modules = set(graph)
@@ -133,3 +155,14 @@ def test_the_checker_sees_a_violation(tmp_path):
     finally:
         ROOT = saved
     assert ("neuralcol.stages.detector", ["_private"], 2) in found and ("neuralcol.api", [], 3) in found
+    stage = tmp_path / "neuralcol" / "stages" / "x.py"
+    stage.parent.mkdir(parents=True)
+    stage.write_text("from neuralcol.stages import cascade\nfrom .realistic import f\n"
+                     "from neuralcol.samples import y\n")
+    ROOT = tmp_path / "neuralcol"
+    try:
+        imports = [(t, n, line, stage) for t, n, line in _imports(stage)]
+        found = _stage_imports("neuralcol.stages.x", imports)
+    finally:
+        ROOT = saved
+    assert [f.rsplit(" ", 1)[-1] for f in found] == ["neuralcol.stages.cascade", "neuralcol.stages.realistic"]

@@ -1,4 +1,4 @@
-"""model_size=auto (issue 17): the choice rule on hand-made records, and a tiny search end to end."""
+"""The model-size search: the choice rule on hand-made records, and a tiny search end to end with its preset."""
 
 import json
 from pathlib import Path
@@ -98,15 +98,44 @@ def test_validate_model_size(tmp_path):
             validate_model_size(_cfg(tmp_path, "model_size=auto", bad))
 
 
+def test_a_run_refuses_model_size_auto_and_names_the_search_command(tmp_path):
+    """The search is a command of its own: a run with model_size=auto stops before any work, saying which command
+    searches the sizes (with the run's overrides)."""
+    from experiments.run import refuse_size_search
+    from neuralcol.pipeline.validate import validate_run_config
+
+    cfg = _cfg(tmp_path, "model_size=auto")
+    with pytest.raises(UserInputError, match=r"python -m experiments\.model_size search dataset=scape"):
+        refuse_size_search(cfg, ["dataset=scape", "model_size=auto"])
+    with pytest.raises(UserInputError, match=r"model_size=auto: .*python -m experiments\.model_size search"):
+        validate_run_config(cfg)  # (the pipeline's own check, for runs started from Python)
+
+
+def test_a_preset_is_refused_for_another_data_set(tmp_path):
+    from omegaconf import open_dict
+
+    from neuralcol.pipeline.validate import validate_run_config
+
+    cfg = _cfg(tmp_path)
+    with open_dict(cfg):
+        cfg.model_size.dataset = "scape"  # what a preset of the size search for SCAPE holds
+    with pytest.raises(UserInputError, match="searched for dataset=scape, not dataset=proc_hand"):
+        validate_run_config(cfg)
+
+
 def test_auto_search_end_to_end(tmp_path, capsys):
+    """The search (python -m experiments.model_size search) on proc_hand at test size, then a run with the preset it
+    writes: the same search and the same choice as model_size=auto made inside a run."""
     from experiments.model_size import main as model_size_main
+    from experiments.model_size import search, write_preset
     from experiments.run import run
 
-    cfg = _cfg(tmp_path, "model_size=auto", "model_size.n_components=[2,4]", "model_size.level2_dim=[0,1]",
-               "model_size.width=[0.5,1.0]", "model_size.budget=80", "model_size.recon_tol=0.5",
-               "detector.max_rounds=0", "realistic.enabled=false")
-    metrics = run(cfg, tmp_path / "run")
-    doc = json.loads((tmp_path / "run" / "model_size" / "model_size.json").read_text())
+    sizes = ["model_size.n_components=[2,4]", "model_size.level2_dim=[0,1]", "model_size.width=[0.5,1.0]",
+             "model_size.budget=80", "model_size.recon_tol=0.5", "detector.max_rounds=0", "realistic.enabled=false"]
+    cfg = _cfg(tmp_path, "model_size=auto", *sizes)
+    evidence = tmp_path / "search"
+    doc = search(cfg, evidence, run)
+    assert json.loads((evidence / "model_size.json").read_text()) == json.loads(json.dumps(doc))
     assert len(doc["latent"]) == 4 and len(doc["detector"]) == 2 and doc["budget"] == 80
     c = doc["chosen"]
     assert c["n_components"] in (2, 4) and c["level2_dim"] in (0, 1) and c["detector_width"] in (0.5, 1.0)
@@ -118,28 +147,37 @@ def test_auto_search_end_to_end(tmp_path, capsys):
     best_acc = max(r["accuracy"] for r in doc["detector"])
     chosen = next(r for r in doc["detector"] if r["detector_width"] == c["detector_width"])
     assert chosen["accuracy"] >= best_acc - 0.005
+    assert search(cfg, evidence, run) == doc  # a finished search is read back
     # each width's sub-run is a run directory of its own: the Python API opens it with its sizes
     from neuralcol import load_run
 
-    sub = load_run(tmp_path / "run" / "model_size" / "width_0.5")
+    sub = load_run(evidence / "width_0.5")
     assert sub.cfg.detector.net.width == 0.5 and sub.cfg.detector.max_rounds == 0
     assert sub.detect(sub.space.sample(3)).prob.shape == (3,)
     sub.close()
-    # the run went on with the chosen sizes
+    # the preset: a model_size option of its own (here on Hydra's search path); the run takes the chosen sizes
+    preset = write_preset(tmp_path / "conf" / "model_size" / "searched.yaml", doc, "proc_hand",
+                          evidence / "model_size.json")
+    assert preset.read_text().startswith("# @package _global_\n")
+    run_cfg = _cfg(tmp_path, "model_size=searched", f"hydra.searchpath=[file://{tmp_path / 'conf'}]", *sizes[-2:])
+    assert run_cfg.dataset.latent.n_components == c["n_components"] and run_cfg.model_size.mode == "fixed"
+    metrics = run(run_cfg, tmp_path / "run")
     assert metrics["model_size"]["chosen"] == c
+    assert {k: metrics["model_size"][k] for k in ("chosen_accuracy", "best_accuracy", "budget", "default", "rule")} \
+        == {k: doc[k] for k in ("chosen_accuracy", "best_accuracy", "budget", "default", "rule")}
     assert metrics["latent"]["n_parts"] == c["n_components"]
     assert metrics["latent"]["dim"] == c["n_components"] * (1 + c["level2_dim"])
     assert metrics["detector"]["net"]["width"] == c["detector_width"]
     # the sub-runs are a sweep directory: the CLI applies the same rule to them
     capsys.readouterr()
-    model_size_main([str(tmp_path / "run" / "model_size"), "--recon-tol", "0.5"])
+    model_size_main([str(evidence), "--recon-tol", "0.5"])
     assert "chosen:" in capsys.readouterr().out
-    again = json.loads((tmp_path / "run" / "model_size" / "model_size.json").read_text())
+    again = json.loads((evidence / "model_size.json").read_text())
     assert again["chosen"]["detector_width"] == c["detector_width"]
     # ... and the report draws them with the choice marked on the Pareto chart
     from experiments.report import main as report_main
 
-    report_main([str(tmp_path / "run" / "model_size"), "--out", str(tmp_path / "report")])
+    report_main([str(evidence), "--out", str(tmp_path / "report")])
     assert (tmp_path / "report" / "pareto.png").is_file()
     starred = [ln for ln in (tmp_path / "report" / "report.md").read_text().splitlines() if "**chosen**" in ln]
     assert len(starred) == 1 and f"K{c['n_components']} L{c['level2_dim']}" in starred[0]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.stats import binomtest
 
-from experiments.run import operating_point_line, operating_verdict, round_rows
+from experiments.reporting.summary import operating_point_line, operating_verdict, round_rows
 from neuralcol.metrics.detection import fnr_interval, proportion_interval
 
 

@@ -181,7 +181,7 @@ def test_lost_scheduler_raises(setup):
 def test_dask_config_is_valid():
     from hydra import compose, initialize_config_dir
 
-    from neuralcol.stages.validate import config_problems
+    from neuralcol.pipeline.validate import config_problems
 
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose(config_name="config", overrides=["labeling.pool.executor=dask",

@@ -245,7 +245,7 @@ def test_clearance_limited_labels_keep_the_selection_and_every_verdict(tmp_path)
     meshes keep their PD bit for bit, free ones read exactly -limit (clear either way)."""
     from neuralcol.collision.labeler import ExactLabeler
     from neuralcol.collision.pool import LabelPool
-    from neuralcol.stages.realistic import evaluation_limit, realistic_set
+    from neuralcol.samples.realistic import evaluation_limit, realistic_set
 
     v0, f = make_tube(n_rings=16, n_around=8)
     poses = np.stack([_curl(v0, a) for a in (0.5, 2.0, 4.0, 5.5)])

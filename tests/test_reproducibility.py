@@ -74,7 +74,7 @@ def test_same_numbers_on_one_and_two_threads(tmp_path):
 def test_bad_thread_count_is_named(bad):
     from hydra import compose, initialize_config_dir
 
-    from neuralcol.stages.validate import config_problems
+    from neuralcol.pipeline.validate import config_problems
 
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose(config_name="config", overrides=[f"threads={bad}"])
@@ -85,7 +85,7 @@ def test_bad_thread_count_is_named(bad):
 def test_thread_counts_accepted(good):
     from hydra import compose, initialize_config_dir
 
-    from neuralcol.stages.validate import config_problems
+    from neuralcol.pipeline.validate import config_problems
 
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose(config_name="config", overrides=[f"threads={good}"])

@@ -242,7 +242,7 @@ def test_detector_checkpoint_resumes_with_weights_only_and_refuses_pickles(tmp_p
     assert torch.serialization.get_unsafe_globals_in_checkpoint(ckpt) == []  # hyperparameters, optimizer, rounds
     shutil.copytree(tmp_path / "cut", tmp_path / "evil")
     resumed, _ = _train(tmp_path, "supv", run="cut", **SMALL)  # Lightning reads it with weights_only=True
-    assert resumed["detector"]["resumed"] is True and [r["round"] for r in resumed["rounds"]] == [0, 1, 2]
+    assert resumed.summary["resumed"] is True and [r["round"] for r in resumed.rounds] == [0, 1, 2]
 
     marker = tmp_path / "marker"
     evil = _write_malicious(RunDir(tmp_path / "evil").checkpoint, marker)

@@ -18,9 +18,10 @@ import pytest
 import torch
 
 from experiments.reporting.speed_accuracy import plot_speed_accuracy, speed_accuracy_groups
+from experiments.reporting.summary import speed_accuracy_table
 from neuralcol.metrics.detection import detection_metrics
 from neuralcol.nn.detector import CollisionDetector
-from neuralcol.stages.speed import measure_speed_accuracy, speed_accuracy_problems, speed_accuracy_table
+from neuralcol.stages.speed import measure_speed_accuracy, speed_accuracy_problems
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -160,7 +161,7 @@ def test_stage_without_cascade_or_meshlab(monkeypatch):
 def test_config_problems_are_named():
     cfg = _cfg()
     assert speed_accuracy_problems(cfg.speed_accuracy) == []
-    from neuralcol.stages.validate import config_problems
+    from neuralcol.pipeline.validate import config_problems
 
     bad = _cfg(n_timed=0, forms="[float16]", reps=1.5)
     problems = config_problems(bad)

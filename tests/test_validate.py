@@ -10,7 +10,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from neuralcol.errors import UserInputError
-from neuralcol.stages.validate import config_problems, validate_run_config
+from neuralcol.pipeline.validate import config_problems, validate_run_config
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -121,7 +121,7 @@ def detector_parameters(run: dict) -> int | None:
     """The run's detector parameter count (metrics.json, or counted from ``detector.pt`` for older runs)."""
     n = run["detector"].get("n_parameters")
     if n is None and (Path(run["_path"]) / "detector.pt").is_file():
-        from neuralcol.stages.detector import load_detector
+        from neuralcol.nn.detector import load_detector
 
         net, _ = load_detector(Path(run["_path"]) / "detector.pt")
         n = int(sum(p.numel() for p in net.parameters()))

@@ -93,8 +93,9 @@ class CascadeMixin:
         before it existed): ``size`` uniform codes from U(Z) of ``seed`` (None: the run's
         ``detector.cascade.calibration_size`` / ``calibration_seed``), labeled through the run's label pool and
         cached beside its test set like the pipeline's. Returns the file's path."""
-        from neuralcol.stages.cascade import calibration_set, save_calibration
-        from neuralcol.stages.realistic import detector_logits
+        from neuralcol.handler.resolve import detector_logits
+        from neuralcol.samples.cache import calibration_set
+        from neuralcol.stages.cascade import save_calibration
 
         size = size if size is not None else OmegaConf.select(self.cfg, "detector.cascade.calibration_size")
         seed = seed if seed is not None else OmegaConf.select(self.cfg, "detector.cascade.calibration_seed")

@@ -6,6 +6,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import torch
 from torch import nn
@@ -48,3 +50,16 @@ class LatentBox(nn.Module):
         (64 % of SCAPE's realistic meshes, 99 % of proc_hand's)."""
         lo, hi = self.box_lo.to(z_all), self.box_hi.to(z_all)
         return ((z_all < lo) | (z_all > hi)).any(-1)
+
+
+def with_box(space, lo: torch.Tensor, hi: torch.Tensor):
+    """A latent space like ``space`` with the box ``[lo, hi]`` ((D,) each, cast to the box's dtype and device); every
+    other part (networks, ACAP transform, mesh, sub-domains) is shared, and ``space`` itself is unchanged. Works on
+    any object with ``box_lo``/``box_hi`` attributes; a module gets its own buffer table, so the two boxes never
+    alias."""
+    other = copy.copy(space)
+    if isinstance(space, nn.Module):
+        other._buffers = dict(space._buffers)
+    other.box_lo = torch.as_tensor(lo).to(space.box_lo).clone()
+    other.box_hi = torch.as_tensor(hi).to(space.box_hi).clone()
+    return other

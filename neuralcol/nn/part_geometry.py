@@ -23,6 +23,8 @@ Symbols: B batch, V vertices, K sub-domains, P chosen pairs, M slots per sub-dom
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
@@ -36,6 +38,10 @@ from neuralcol.geometry.contact_pairs import (
     hop_neighbourhood,
 )
 from neuralcol.nn.inference import batched_logits
+from neuralcol.utils.files import atomic_path
+from neuralcol.utils.progress import progress_bar
+
+INPUTS = ("latent", "code_and_mesh")  # detector.inputs
 
 
 def close_pair_scores(meshes: np.ndarray, collides: np.ndarray, rest: np.ndarray, faces: np.ndarray,
@@ -289,3 +295,73 @@ def code_mesh_logits(detector, z: np.ndarray, vertices: np.ndarray, block: int =
         return np.zeros(0, np.float32)
     return batched_logits(detector, torch.as_tensor(np.asarray(z, np.float32)), torch.as_tensor(feats),
                           batch=block).numpy()
+
+
+def detector_inputs(det: dict) -> str:
+    """``detector.inputs`` (default ``latent``), checked."""
+    inputs = str(det.get("inputs", "latent"))
+    if inputs not in INPUTS:
+        raise ValueError(f"detector.inputs={inputs!r}; use one of {INPUTS}")
+    return inputs
+
+
+
+def choose_run_geometry(space, z: np.ndarray, collides: np.ndarray, real, cfg: dict,
+                        path: str | Path) -> PartGeometry:
+    """Choose the pairs on the decoded codes ``z`` (labeled ``collides``; at most ``cfg["select_codes"]`` of them,
+    an even stride) and the realistic training meshes, and save them to ``path`` (``geometry.npz``).
+
+    Args:
+        space: the latent space. z, collides: labeled codes (the bootstrap). real: realistic training rows
+            (``vertices`` (M, V, 3), ``collides`` (M,): :class:`~neuralcol.samples.realistic.RealisticRows`) or None.
+        cfg: ``detector.geometry`` (radius, min_hops, fold_ratio, colliding_weight, per_part, clip, select_codes).
+        path: where the choice is saved.
+    """
+    z = np.asarray(z, np.float32)
+    stride = max(1, -(-len(z) // max(1, int(cfg["select_codes"]))))
+    sel = np.arange(0, len(z), stride)
+    with torch.no_grad():
+        meshes = [space.decode(torch.as_tensor(z[sel[i:i + 512]])).double().cpu().numpy()
+                  for i in range(0, len(sel), 512)]
+    v = np.concatenate(meshes) if meshes else np.zeros((0, *space.rest_vertices.shape))
+    y = np.asarray(collides, bool)[sel]
+    if real is not None and len(real.vertices):
+        v = np.concatenate([v, real.vertices])
+        y = np.concatenate([y, real.collides])
+    geo = choose_geometry(space, v, y, radius=float(cfg["radius"]), min_hops=int(cfg["min_hops"]),
+                          fold_ratio=float(cfg["fold_ratio"]), colliding_weight=float(cfg["colliding_weight"]),
+                          per_part=int(cfg["per_part"]), clip=float(cfg["clip"]))
+    with atomic_path(Path(path)) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, pairs=geo.contact.pairs.numpy(), slots=geo.slots.numpy(), mask=geo.mask.numpy(),
+                     radius=np.float64(geo.contact.radius), clip=np.float64(geo.contact.clip),
+                     n_examples=np.int64(len(v)))
+    return geo
+
+
+
+def load_run_geometry(space, path: str | Path) -> PartGeometry:
+    """The pairs :func:`choose_run_geometry` saved (a resumed run builds the same detector)."""
+    with np.load(Path(path), allow_pickle=False) as f:
+        return PartGeometry(f["pairs"], f["slots"], f["mask"], space.faces.detach().cpu().numpy(),
+                            float(f["radius"]), float(f["clip"]))
+
+
+
+def codes_featurizer(geometry: PartGeometry, space, block: int = 4096):
+    """``codes (B, D) -> pair features (B, P, 3) float32`` of their decoded meshes, in blocks, no gradients; a
+    progress line or bar when there are more than two blocks (round 0 of a paper-scale run: 2e5 codes through an
+    ACAP decoder, minutes)."""
+
+    def featurize(z: np.ndarray) -> np.ndarray:
+        z = torch.as_tensor(np.asarray(z, np.float32))
+        out = []
+        with torch.no_grad(), progress_bar(total=len(z), desc="pair features of decoded codes", unit="code",
+                                           disable=len(z) <= 2 * block) as bar:
+            for i in range(0, len(z), block):
+                out.append(geometry_of_codes(geometry, space, z[i:i + block]).float())
+                bar.update(len(out[-1]))
+        return torch.cat(out).numpy() if out else np.zeros((0, geometry.n_pairs, 3), np.float32)
+
+    return featurize
+

@@ -43,6 +43,17 @@ def shared_test_set(oracle: LatentOracle, det_cfg, latent_key: str, cache_dir: s
                                 int(det["test_seed"]), desc="labeling the test set")
 
 
+def calibration_set(oracle: LatentOracle, det_cfg, latent_key: str, cache_dir: str | Path):
+    """The certified cascade's calibration set (``detector.cascade``: ``calibration_size`` uniform codes of their own
+    seed, apart from the test set and D_c), labeled once, cached and shared by every method and seed like the test
+    set; the operating point may be set on it too: (rows, seconds spent labeling now, rows labeled now)."""
+    c = as_dict(det_cfg)["cascade"]
+    shared = samples_cache_dir(cache_dir, latent_key, oracle.pool.labeler)
+    seed = int(c["calibration_seed"])
+    return labeled_uniform_rows(shared / f"calibration_s{seed}.h5", oracle, int(c["calibration_size"]), seed,
+                                desc="labeling the cascade's calibration set")
+
+
 def label_failures(path: Path) -> int:
     """Codes of a cached uniform-sample store the exact labeler failed on (dropped and replaced; 0 if none)."""
     import h5py

@@ -63,3 +63,24 @@ def check_box(probe: dict, min_class_share: float, dataset: str, references: dic
         f"{min_class_share:g}) and a detector trained and judged on it would learn nothing. Change the latent space: "
         f"autoencoder=pca (the share in the PCA references' boxes: {alts or 'n/a'}), a smaller |Z_all| "
         "(dataset.latent.n_components / level2_dim), or autoencoder.box_margin; box_check.enabled=false runs anyway")
+
+
+def box_stage(space, ref_spaces: dict, pool, cfg, box_fit: dict | None = None) -> dict | None:
+    """``box_check`` of a run: label a probe of U(Z) and of the references' boxes; stop on a degenerate box
+    (:func:`check_box`). The fitted box's probe (``box_fit``, same size and seed) is reused, not labeled again.
+
+    Returns:
+        ``{"space": probe, "references": {name: probe}, "min_class_share"}`` (``metrics.json``'s
+        ``latent.box_probe``; a probe is :func:`probe_share`'s dict), or None when ``box_check`` is off.
+    """
+    bc = cfg.get("box_check")
+    if bc is None or not bc.enabled:
+        return None
+    n, seed = int(bc.n_probe), int(bc.seed)
+    chosen = [t for t in (box_fit or {}).get("trials", []) if t["factor"] == box_fit["factor"]]
+    probe = ({k: v for k, v in chosen[0].items() if k != "factor"} if chosen
+             else probe_share(space, pool, n, seed, desc="probing the box Z"))
+    refs = {name: probe_share(ref, pool, n, seed, desc=f"probing the box of {name}")
+            for name, ref in ref_spaces.items()} if bc.references else {}
+    check_box(probe, float(bc.min_class_share), str(cfg.dataset.name), refs)
+    return {"space": probe, "references": refs, "min_class_share": float(bc.min_class_share)}

@@ -11,7 +11,8 @@ space and 64 % in vertex PCA's, whose corners combine every component's extreme;
    same uniform draws mapped into each box, until a probe lies in the band;
 4. none does: the factor whose share is nearest the band (``box_check`` then judges it as before).
 
-Pure in what it changes: :func:`fit_box` writes only the space's ``box_lo``/``box_hi`` buffers.
+:func:`fit_box` changes no space: each trial probes a copy with the scaled box (:func:`boxed`), and the caller makes
+the fitted space from the returned factor (:func:`fitted_space`), a new object beside the paper box's.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ from collections.abc import Callable, Sequence
 
 import torch
 
+from neuralcol.nn.latent_box import with_box
+
 
 def scaled_box(lo: torch.Tensor, hi: torch.Tensor, factor: float) -> tuple[torch.Tensor, torch.Tensor]:
     """The box ``[lo, hi]`` scaled about its centre by ``factor`` (1: unchanged; 0.5: half the width)."""
@@ -27,11 +30,15 @@ def scaled_box(lo: torch.Tensor, hi: torch.Tensor, factor: float) -> tuple[torch
     return centre - half, centre + half
 
 
-def set_scaled_box(space, lo: torch.Tensor, hi: torch.Tensor, factor: float) -> None:
-    """Write the box ``[lo, hi]`` scaled by ``factor`` (:func:`scaled_box`) into ``space``'s box buffers."""
-    slo, shi = scaled_box(lo, hi, factor)
-    space.box_lo.copy_(slo)
-    space.box_hi.copy_(shi)
+def boxed(space, lo: torch.Tensor, hi: torch.Tensor, factor: float):
+    """``space`` with the box ``[lo, hi]`` scaled by ``factor`` (:func:`scaled_box`): a new space object
+    (:func:`~neuralcol.nn.latent_box.with_box`); ``space`` is unchanged."""
+    return with_box(space, *scaled_box(lo, hi, factor))
+
+
+def fitted_space(space, factor: float):
+    """``space`` with its own box scaled by ``factor`` (the fitted space of :func:`fit_box`'s factor); a new object."""
+    return boxed(space, space.box_lo.detach().clone(), space.box_hi.detach().clone(), factor)
 
 
 def band_distance(share: float | None, band: Sequence[float]) -> float:
@@ -53,26 +60,25 @@ def check_ladder(band: Sequence[float], shrink: Sequence[float], grow: Sequence[
 
 def fit_box(space, probe: Callable[[object], dict], band: Sequence[float], shrink: Sequence[float],
             grow: Sequence[float]) -> dict:
-    """Fit ``space``'s box to ``band`` in place (see the module's steps).
+    """Fit ``space``'s box to ``band`` (see the module's steps); ``space`` is not changed.
 
     Args:
-        space: a latent space (:class:`~neuralcol.nn.latent_box.LatentBox`); its box is overwritten.
-        probe: ``space -> {"collision_share", ...}`` labeling a fixed probe of the space's current ``U(Z)``
+        space: a latent space (:class:`~neuralcol.nn.latent_box.LatentBox`).
+        probe: ``space -> {"collision_share", ...}`` labeling a fixed probe of the given space's ``U(Z)``
             (:func:`~neuralcol.stages.box_check.probe_share` with a fixed seed).
         band: [low, high] colliding share of a box worth sampling.
         shrink, grow: factors tried in order when the paper's box is above / below the band.
 
     Returns:
         ``{"factor", "in_band", "band", "trials": [{"factor", **probe}, ...]}``; ``trials[-1]`` need not be the
-        chosen box's probe (when no factor reached the band).
+        chosen box's probe (when no factor reached the band). :func:`fitted_space` makes the space of ``factor``.
     """
     check_ladder(band, shrink, grow)
     lo0, hi0 = space.box_lo.detach().clone(), space.box_hi.detach().clone()
     trials = []
 
     def trial(factor: float) -> float | None:
-        set_scaled_box(space, lo0, hi0, factor)
-        result = probe(space)
+        result = probe(boxed(space, lo0, hi0, factor))
         trials.append({"factor": float(factor), **result})
         return result["collision_share"]
 
@@ -84,7 +90,6 @@ def fit_box(space, probe: Callable[[object], dict], band: Sequence[float], shrin
             if share is None or band_distance(share, band) == 0 or (share < float(band[0])) == above:
                 break  # in the band, or crossed it: more of the ladder only moves further away
     best = min(trials, key=lambda t: (band_distance(t["collision_share"], band), abs(t["factor"] - 1.0)))
-    set_scaled_box(space, lo0, hi0, best["factor"])
     return {"factor": best["factor"], "in_band": band_distance(best["collision_share"], band) == 0,
             "band": [float(b) for b in band], "trials": trials}
 

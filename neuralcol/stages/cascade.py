@@ -25,17 +25,17 @@ fewest exact calls, never less accurate than the detector alone (``detector.casc
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from neuralcol.handler.resolve import detector_logits
 from neuralcol.metrics.cascade import DETECTOR, POINTWISE, Band, cascade_scores, choose_band
 from neuralcol.metrics.detection import detection_metrics
-from neuralcol.samples.cache import samples_cache_dir
+from neuralcol.samples.cache import calibration_set
 from neuralcol.samples.oracle import LatentOracle
-from neuralcol.samples.uniform import labeled_uniform_rows
-from neuralcol.stages.realistic import detector_logits
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.files import atomic_path
 
@@ -86,16 +86,6 @@ def cascade_problems(cfg) -> list[str]:
                         f"the calibration set), {POINTWISE} (on every sample), an accuracy floor in [0, 1], or null "
                         "(no floor: no exact call)")
     return problems
-
-
-def calibration_set(oracle: LatentOracle, det_cfg, latent_key: str, cache_dir: str | Path):
-    """The calibration set (labeled once, cached, shared by every method and seed like the test set):
-    (rows, seconds spent labeling now, rows labeled now)."""
-    c = as_dict(det_cfg)["cascade"]
-    shared = samples_cache_dir(cache_dir, latent_key, oracle.pool.labeler)
-    seed = int(c["calibration_seed"])
-    return labeled_uniform_rows(shared / f"calibration_s{seed}.h5", oracle, int(c["calibration_size"]), seed,
-                                desc="labeling the cascade's calibration set")
 
 
 def save_calibration(path: str | Path, logits: np.ndarray, collides: np.ndarray, seed: int) -> None:
@@ -177,17 +167,19 @@ def cascade_report(bands: dict[float, Band], calib_collides: np.ndarray, calib_s
 
 
 def calibrate(net: torch.nn.Module, oracle: LatentOracle, det_cfg, latent_key: str, cache_dir: str | Path,
-              path: str | Path) -> tuple[dict[float, Band] | None, np.ndarray]:
+              path: str | Path,
+              log: Callable[[str], None] | None = None) -> tuple[dict[float, Band] | None, np.ndarray]:
     """Label (or read) the calibration set, save the final detector's logits on it to ``path`` (``cascade.npz``)
     and choose the band of each ``detector.cascade.targets``: (``{target: band}``, the calibration labels); no
-    bands (None, with a printed line) when no calibration sample collides."""
+    bands (None, with a line to ``log``) when no calibration sample collides."""
     c = as_dict(det_cfg)["cascade"]
     rows, _, _ = calibration_set(oracle, det_cfg, latent_key, cache_dir)
     logits, collides = detector_logits(net, rows.z), np.asarray(rows.collides, bool)
     save_calibration(path, logits, collides, int(c["calibration_seed"]))
     if not collides.any():  # e.g. a tiny run whose U(Z) hardly collides: no FNR to certify, the run goes on
-        print(f"[cascade] none of the {len(collides)} calibration samples collides: no band (the FNR is undefined); "
-              "a larger detector.cascade.calibration_size may find colliding ones", flush=True)
+        if log is not None:
+            log(f"[cascade] none of the {len(collides)} calibration samples collides: no band (the FNR is undefined); "
+                "a larger detector.cascade.calibration_size may find colliding ones")
         return None, collides
     return choose_bands(logits, collides, c["targets"], c.get("min_accuracy", POINTWISE), c.get("confidence")), collides
 
@@ -198,7 +190,7 @@ def cascade_stage(net: torch.nn.Module, space, labeler, test, bands: dict[float,
     cases (``realistic_arrays``: :func:`~neuralcol.stages.realistic.evaluate_realistic`'s arrays, or None), with
     the exact path's time per sample measured here, next to ``detector_us``, the detector's µs per sample at batch
     4096 measured just before in the same process (``inference_us(net, test.z, (4096,))["batch_4096"]`` of
-    :mod:`neuralcol.stages.detector`, which imports the config checks that import this module)."""
+    :mod:`neuralcol.stages.detector`)."""
     c = as_dict(det_cfg)["cascade"]
     test_logits = detector_logits(net, test.z)
     exact_ms = exact_ms_per_sample(space, labeler, test.z[: int(c["timing_samples"])])
@@ -209,43 +201,3 @@ def cascade_stage(net: torch.nn.Module, space, labeler, test, bands: dict[float,
         realistic = (np.asarray(realistic_arrays["logit"])[keep], pd[keep] > 0)
     return cascade_report(bands, calib_collides, int(c["calibration_seed"]), test_logits, test.collides, detector_us,
                           exact_ms, realistic)
-
-
-def log_cascade(logger, m: dict, step: int) -> None:
-    """TensorBoard scalars under ``cascade/`` (at the final |D_c|): per target FNR, the test and realistic FNR,
-    accuracy and exact share, and the speed-up over the exact labeler alone."""
-    for t in m["targets"]:
-        tag = f"cascade/fnr_{t['target_fnr']:g}"
-        scalars = {f"{tag}/{where}_{k}": (t[where] or {}).get(k) for where in ("test", "realistic")
-                   for k in ("fnr", "accuracy", "exact_share")}
-        scalars[f"{tag}/speedup_vs_exact"] = t["speedup_vs_exact"]
-        scalars[f"{tag}/samples_per_s"] = t["samples_per_s"]
-        for k, v in scalars.items():
-            if v is not None and np.isfinite(v):
-                logger.experiment.add_scalar(k, float(v), global_step=step)
-
-
-def cascade_table(m: dict | None) -> list[str]:
-    """The summary's lines: one per target FNR (band, test and realistic FNR / accuracy / exact share, speed)."""
-    if not m:
-        return []
-    a = m["detector_alone"]
-    lines = [f"certified cascade (calibration: {m['calibration']['n']} U(Z) codes, {m['calibration']['base_rate']:.1%}"
-             f" collide; exact {m['exact_ms_per_sample']:.2f} ms/sample, detector "
-             f"{m['detector_us_per_sample']:.2f} µs/sample):",
-             "  target FNR  band [lo, hi)      test FNR  accuracy  exact   realistic FNR  accuracy  exact   "
-             "samples/s  vs exact"]
-
-    def f(v, spec):
-        return "n/a" if v is None or not np.isfinite(v) else format(v, spec)
-
-    for t in m["targets"]:
-        te, re = t["test"], t["realistic"] or {}
-        band = f"[{f(t['lo'], '.2f')}, {f(t['hi'], '.2f') if np.isfinite(t['hi']) else 'inf'})"
-        lines.append(f"  {t['target_fnr']:<10g}  {band:<17} {f(te['fnr'], '.4f'):>8}  {f(te['accuracy'], '.4f'):>8}"
-                     f"  {f(te['exact_share'], '.1%'):>6}  {f(re.get('fnr'), '.4f'):>13}  "
-                     f"{f(re.get('accuracy'), '.4f'):>8}  {f(re.get('exact_share'), '.1%'):>6}  "
-                     f"{t['samples_per_s']:>9.0f}  {t['speedup_vs_exact']:>7.1f}x")
-    lines.append(f"  detector alone             {a['test']['fnr']:>8.4f}  {a['test']['accuracy']:>8.4f}  "
-                 f"{0:>6.1%}  {'':>13}  {'':>8}  {'':>6}  {a['samples_per_s']:>9.0f}")
-    return lines

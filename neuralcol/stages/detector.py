@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import lightning as L
 import numpy as np
@@ -25,26 +27,29 @@ from neuralcol.errors import UserInputError
 from neuralcol.lit.detector import DetectorLitModule, detector_module
 from neuralcol.metrics.detection import detection_metrics, fnr_interval, fnr_threshold, mean_fnr_threshold
 from neuralcol.metrics.tensorboard import log_round_examples
-from neuralcol.nn.detector import CollisionDetector, build_detector, net_widths, save_detector
+from neuralcol.nn.detector import CollisionDetector, build_detector, load_detector, net_widths, save_detector
 from neuralcol.nn.inference import batched_logits
-from neuralcol.nn.part_geometry import DetectorOnCodes, mesh_pair_features
-from neuralcol.rundir import RunDir
-from neuralcol.samples.cache import label_failures, samples_cache_dir, shared_test_set
-from neuralcol.samples.datamodule import CollisionDataModule
-from neuralcol.samples.oracle import LatentOracle
-from neuralcol.samples.store import CollisionRows, CollisionStore, Origin
-from neuralcol.stages.geometry import (
-    RealisticRows,
+from neuralcol.nn.part_geometry import (
+    DetectorOnCodes,
     choose_run_geometry,
     codes_featurizer,
     detector_inputs,
     load_run_geometry,
+    mesh_pair_features,
 )
-from neuralcol.stages.validate import METHODS, OPERATING_SETS  # one list of each
+from neuralcol.rundir import RunDir
+from neuralcol.samples.cache import calibration_set, label_failures, samples_cache_dir, shared_test_set
+from neuralcol.samples.datamodule import CollisionDataModule
+from neuralcol.samples.oracle import LatentOracle
+from neuralcol.samples.realistic import RealisticRows
+from neuralcol.samples.store import CollisionRows, CollisionStore, Origin
 from neuralcol.utils.config import as_dict
 from neuralcol.utils.files import atomic_path, write_json_atomic
 from neuralcol.utils.progress import trainer_progress
 from neuralcol.utils.safe_files import numpy_values_allowed, read_torch_file
+
+METHODS = ("supv", "supv_bd", "active", "active_paper")  # method.name
+OPERATING_SETS = ("auto", "calibration", "realistic", "both", "realistic_calibration")  # detector.operating_set
 
 
 def evaluate_on_test(module: DetectorLitModule, test: CollisionRows) -> dict:
@@ -138,7 +143,7 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
       ``operating_fnr`` (each set weighs the same; :func:`~neuralcol.metrics.detection.mean_fnr_threshold`);
     * ``realistic_calibration``: ``calibration_meshes`` ``(vertices (C, V, 3), collides (C,))``, a realistic set
       apart from D_c drawn like the realistic test set
-      (:func:`~neuralcol.stages.realistic.calibration_meshes`), judged as ``detect(mesh)`` judges a mesh;
+      (:func:`~neuralcol.samples.realistic.calibration_meshes`), judged as ``detect(mesh)`` judges a mesh;
     * ``auto``: ``realistic`` where D_c holds such rows, else ``calibration``.
 
     The last round's test metrics become those at the threshold; the ones at logit 0 stay under ``at_logit_0``.
@@ -177,8 +182,6 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
                                  "detector.operating_set=calibration")
         sets.append((mesh_logits(net, space, calibration_meshes[0]), np.asarray(calibration_meshes[1], bool)))
     if where in ("calibration", "both"):
-        from neuralcol.stages.cascade import calibration_set
-
         calib, _, _ = calibration_set(oracle, det, latent_key, cache_dir)
         sets.append((predict_test_set(on_codes, calib)["logit"], np.asarray(calib.collides, bool)))
     t = fnr_threshold(*sets[0], float(target)) if len(sets) == 1 else mean_fnr_threshold(sets, float(target))
@@ -217,16 +220,38 @@ def training_oracle(oracle: LatentOracle, det: dict, seed: int) -> tuple[LatentO
     return oracle.for_training(float(floor)), f"uniform_s{seed}_floor{float(floor):g}.h5"
 
 
+class TrainedDetector(NamedTuple):
+    """What :func:`train_detector` returns.
+
+    Attributes:
+        rounds: one record per round (``metrics.json``'s ``rounds``): ``round``, ``dataset_size`` (|D_c| after it),
+            the U(Z) test set's ``accuracy``, ``fnr``, ``fpr``, ``balanced_accuracy``, ``base_rate`` (fractions),
+            ``label_seconds``, ``train_seconds``, ``epochs``, ...; the last one at the operating point where one is
+            set (its figures at logit 0 under ``at_logit_0``).
+        summary: ``metrics.json``'s ``detector`` (method, stopping, test set, operating point, sizes, timings).
+        net: the final detector as a function of codes (:class:`~neuralcol.nn.part_geometry.DetectorOnCodes`,
+            on the CPU, its operating threshold folded into the output bias): the weights ``detector.pt`` holds,
+            kept in memory so nothing in the run reads the file back.
+    """
+
+    rounds: list[dict]
+    summary: dict
+    net: DetectorOnCodes
+
+
 def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key: str, seed: int,
                    cache_dir: str | Path, run_dir: str | Path, logger=None, round_eval=None,
-                   real_rows: RealisticRows | None = None, calibration_meshes=None) -> dict:
-    """Run one method end to end (or resume it); returns ``{"rounds": [...], "detector": {...}}``.
+                   real_rows: RealisticRows | None = None, calibration_meshes=None,
+                   round_done: Callable[[str, dict], None] | None = None) -> TrainedDetector:
+    """Run one method end to end (or resume it).
 
-    ``round_eval`` (``net -> dict``, the detector on codes), if given, runs after every round's test (e.g. the
-    handler's evaluation). ``real_rows``: realistic training meshes (:func:`~neuralcol.stages.geometry.
-    realistic_rows`), rows of D_c in round 0 for a detector over code and mesh (``detector.inputs``).
-    ``calibration_meshes``: ``(vertices, collides)`` of the realistic calibration set, for
-    ``detector.operating_set: realistic_calibration`` (:func:`operating_point`).
+    ``logger``: a Lightning logger for the training (``test/*`` scalars against |D_c| and the round examples
+    too), or None. ``round_eval`` (``net -> dict``, the detector on codes), if given, runs after every round's
+    test (e.g. the handler's evaluation). ``real_rows``: realistic training meshes
+    (:func:`~neuralcol.samples.realistic.realistic_rows`), rows of D_c in round 0 for a detector over code and
+    mesh (``detector.inputs``). ``calibration_meshes``: ``(vertices, collides)`` of the realistic calibration set,
+    for ``detector.operating_set: realistic_calibration`` (:func:`operating_point`). ``round_done(method, record)``:
+    called after every finished round (e.g. to print a line).
     """
     det, method = as_dict(det_cfg), as_dict(method_cfg)
     name = method["name"]
@@ -234,11 +259,13 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
         raise ValueError(f"method.name={name!r}; use one of {METHODS}")
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    rounds_path = RunDir(run_dir).detector_rounds
+    rd = RunDir(run_dir)
+    rounds_path = rd.detector_rounds
     if rounds_path.is_file():
         done = json.loads(rounds_path.read_text())
-        if done.get("finished"):
-            return {"rounds": done["rounds"], "detector": {**done["summary"], "resumed": "already finished"}}
+        if done.get("finished"):  # an earlier sitting finished it: its detector.pt is the final detector
+            return TrainedDetector(done["rounds"], {**done["summary"], "resumed": "already finished"},
+                                   DetectorOnCodes(load_detector(rd.detector)[0], space))
     labeler = oracle.pool.labeler
     shared = samples_cache_dir(cache_dir, latent_key, labeler)
     # 1. the fixed test set (shared by every method and seed)
@@ -254,7 +281,6 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     pool_path = shared / pool_name
     # the method's acquisition (method.acquisition: UniformAcquisition or ProjectedAcquisition, built by Hydra)
     acquire = instantiate(method["acquisition"])(pool_path, train_oracle, seed)
-    rd = RunDir(run_dir)
     ckpt = rd.checkpoint
     resuming = ckpt.is_file()
     if resuming:  # refused here, with the file's name, if it holds pickled objects; they are never run
@@ -300,10 +326,8 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
                 rows = rows.select(rows.round == last["round"])
                 log_round_examples(logger.experiment, space, rows, int(last["dataset_size"]),
                                    RunDir(run_dir).round_examples, int(det["tensorboard_examples"]))
-        print(f"[{name}] round {last['round']}: |D_c| = {last['dataset_size']}, test accuracy "
-              f"{last['accuracy']:.4f}, FNR {last['fnr']:.4f}, FPR {last['fpr']:.4f} (base rate "
-              f"{last['base_rate']:.3f}); labeling {last['label_seconds']:.0f} s, training "
-              f"{last['train_seconds']:.0f} s", flush=True)
+        if round_done is not None:
+            round_done(name, last)
 
     rounds_cb = instantiate(det["rounds"])(datamodule=dm, acquire=acquire, evaluate=lambda m: evaluate_on_test(m, test),
                                            bootstrap=sched["bootstrap"], update=sched["update"], checkpoint_path=ckpt,
@@ -352,9 +376,10 @@ def train_detector(space, oracle: LatentOracle, det_cfg, method_cfg, latent_key:
     on_codes = DetectorOnCodes(final, space)  # (the detector itself for one that reads codes only)
     with atomic_path(preds) as tmp:
         np.savez_compressed(tmp, **predict_test_set(on_codes, test))
-    out = {"rounds": rounds_cb.rounds, "detector": {**summary(), "resumed": resuming,
-                                                    "inference_us": inference_us(on_codes, test.z)}}
-    write_json_atomic(rounds_path, {"finished": rounds_cb.finished, "rounds": rounds_cb.rounds,
-                                    "summary": out["detector"]})
+    out = {**summary(), "resumed": resuming, "inference_us": inference_us(on_codes, test.z)}
+    write_json_atomic(rounds_path, {"finished": rounds_cb.finished, "rounds": rounds_cb.rounds, "summary": out})
     dm.close()
-    return out
+    # as detector.pt loads: training mode (no layer depends on it; every evaluation sets eval mode itself), no grads
+    final.train()
+    final.zero_grad(set_to_none=True)
+    return TrainedDetector(rounds_cb.rounds, out, on_codes)

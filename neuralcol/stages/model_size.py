@@ -1,4 +1,4 @@
-"""Stage: choose the latent space and the detector size of a data set (``model_size=auto``).
+"""The model-size rule: choose the latent space and the detector size of a data set.
 
 The rule, in two steps, each "the smallest that is nearly as good as the best":
 
@@ -9,30 +9,23 @@ The rule, in two steps, each "the smallest that is nearly as good as the best":
    ``state_dim`` and ``hidden``), the one with the fewest parameters whose test accuracy at the labeling budget
    is within ``accuracy_tol`` (absolute) of the best width's. Ties: the higher accuracy.
 
-:func:`choose_latent` and :func:`choose_detector` are the rule on plain records; :func:`search_model_size`
-runs it inside ``experiments.run`` (autoencoders trained or taken from the cache; one ``supv`` sub-run per
-width in ``<run dir>/model_size/``); ``python -m experiments.model_size SWEEP_DIR`` applies it to the runs of
-a size sweep (``experiment=size_<dataset>``). Both write ``model_size.json``:
+:func:`choose_latent` and :func:`choose_detector` are the rule on plain records. ``python -m experiments.model_size
+search OVERRIDES`` runs the search (autoencoders trained or taken from the cache; one ``supv`` sub-run per width)
+and writes a preset of the chosen sizes; ``python -m experiments.model_size SWEEP_DIR`` applies the rule to the
+runs of a size sweep (``experiment=size_<dataset>``). Both write ``model_size.json``:
 ``{"chosen": {"n_components", "level2_dim", "detector_width"}, "rule": {...}, "latent": [...],
 "detector": [...]}``.
 """
 
 from __future__ import annotations
 
-import copy
-import itertools
-import json
 import math
-import time
-from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig
 
 from neuralcol.active.stopping import kneedle
 from neuralcol.errors import UserInputError
-from neuralcol.stages.autoencoder import reference_spaces
 
 
 def latent_dim(n_components: int, level2_dim: int) -> int:
@@ -180,86 +173,6 @@ def choose_from_records(records: list[dict], recon_tol: float, accuracy_tol: flo
     for r in records:
         latents.setdefault((r["n_components"], r["level2_dim"]), r)
     return apply_size_rule(list(latents.values()), records, recon_tol, accuracy_tol, latent_rule)
-
-
-def _set(cfg: DictConfig, dotted: dict) -> DictConfig:
-    out = copy.deepcopy(cfg)
-    with open_dict(out):
-        for key, value in dotted.items():
-            OmegaConf.update(out, key, value, merge=False)
-    return out
-
-
-def search_model_size(cfg: DictConfig, run_dir: Path, ds, feats, run_fn: Callable[[DictConfig, Path], dict],
-                      train_latent: Callable) -> tuple[DictConfig, dict]:
-    """``model_size=auto``: choose the sizes for ``cfg``'s data set, write ``<run_dir>/model_size/model_size.json``
-    and return ``cfg`` with the chosen sizes (and ``model_size.mode=fixed``).
-
-    Args:
-        cfg: the run's config (``cfg.model_size``: candidate lists, tolerances, budget, method).
-        run_dir: the run directory; the evidence goes to ``run_dir/model_size``.
-        ds, feats: the data set and its ACAP features.
-        run_fn: ``experiments.run.run`` (one ``supv`` sub-run per detector width, at the chosen latent space).
-        train_latent: ``train_or_load_latent_space`` (autoencoders are cached: a second search is cheap).
-    """
-    ms = cfg.model_size
-    out_dir = Path(run_dir) / "model_size"
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / "model_size.json"
-    if path.is_file():  # a resumed run keeps its choice
-        doc = json.loads(path.read_text())
-    else:
-        t0 = time.perf_counter()
-        latents = []
-        for k, l2 in itertools.product(list(ms.n_components), list(ms.level2_dim)):
-            lat_cfg = _set(cfg, {"dataset.latent.n_components": int(k), "dataset.latent.level2_dim": int(l2)})
-            space, rep, cached = train_latent(ds, feats, lat_cfg.autoencoder, lat_cfg.dataset.latent,
-                                              int(cfg.autoencoder_seed), Path(cfg.paths.cache_dir))
-            # the PCA references at the same |Z_all|: a candidate worse than them is flagged
-            _, refs = reference_spaces(ds, feats, space, rep)
-            ref_val = {f"{name}_val_error": e.get("val_mean_vertex_error") for name, e in refs.items()}
-            latents.append({"n_components": int(k), "level2_dim": int(l2), "latent_dim": latent_dim(k, l2),
-                            "val_error": rep.get("val_mean_vertex_error"),
-                            "train_error": rep.get("train_mean_vertex_error"), **ref_val,
-                            "autoencoder_parameters": rep.get("n_parameters"), "from_cache": cached,
-                            "train_seconds": rep.get("train_seconds")})
-            refs_txt = ", ".join(f"{n} {v:.4f}" for n, v in ref_val.items() if v is not None)
-            print(f"model_size: |Z_0| = {k}, level 2 = {l2}: held-out vertex error {rep.get('val_mean_vertex_error')}"
-                  f"{' (cached)' if cached else ''}; PCA at the same size: {refs_txt or 'n/a'}", flush=True)
-        lat = choose_latent(latents, float(ms.recon_tol), str(ms.latent_rule))
-        budget = ms.budget if ms.budget is not None else \
-            int(cfg.detector.n_init) + int(cfg.detector.max_rounds) * int(cfg.detector.n_aug)
-        records = []
-        for w in list(ms.width):
-            sub = _set(cfg, {"dataset.latent.n_components": lat["n_components"],
-                             "dataset.latent.level2_dim": lat["level2_dim"], "detector.net.width": float(w),
-                             "detector.n_init": int(budget), "detector.max_rounds": 0,
-                             "method": OmegaConf.to_container(cfg.model_size.method, resolve=True),
-                             "handler.verify_margins": [], "handler.eval_every_round": False,
-                             "model_size.mode": "fixed"})
-            name = f"width_{float(w):g}"
-            sub_dir = out_dir / name
-            done = sub_dir / "metrics.json"
-            # the sub-run's own config, as Hydra writes it for a run: neuralcol.load_run (and the bench, export,
-            # handle CLIs) can open a width's sub-run like any run directory
-            (sub_dir / ".hydra").mkdir(parents=True, exist_ok=True)
-            OmegaConf.save(sub, sub_dir / ".hydra" / "config.yaml")
-            metrics = json.loads(done.read_text()) if done.is_file() else run_fn(sub, sub_dir)
-            records.append(size_record(metrics, name))
-            print(f"model_size: detector width x{float(w):g}: {records[-1]['n_parameters']} parameters, "
-                  f"accuracy {records[-1]['accuracy']:.4f} at {budget} samples", flush=True)
-        doc = {**apply_size_rule(latents, records, float(ms.recon_tol), float(ms.accuracy_tol), str(ms.latent_rule)),
-               "budget": int(budget),
-               "default": {"n_components": int(cfg.dataset.latent.n_components),
-                           "level2_dim": int(cfg.dataset.latent.level2_dim),
-                           "detector_width": float(cfg.detector.net.width)},
-               "seconds": time.perf_counter() - t0}
-        path.write_text(json.dumps(doc, indent=2))
-    c = doc["chosen"]
-    print(f"model_size: chosen |Z_0| = {c['n_components']}, level 2 = {c['level2_dim']}, detector width "
-          f"x{c['detector_width']:g} (evidence: {path})", flush=True)
-    return _set(cfg, {"dataset.latent.n_components": c["n_components"], "dataset.latent.level2_dim": c["level2_dim"],
-                      "detector.net.width": c["detector_width"], "model_size.mode": "fixed"}), doc
 
 
 def validate_model_size(cfg: DictConfig) -> None:

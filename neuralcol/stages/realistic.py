@@ -1,8 +1,7 @@
 """Stage: the realistic evaluation set: meshes a user brings, nobody trained on, labeled exactly.
 
-Built once per latent space and labeler (cached beside the U(Z) test set, ``<cache>/collision/<key>/
-realistic_<hash>.npz``) from the data set's meshes (:mod:`neuralcol.data.realistic`). Every run evaluates its
-final detector on it next to U(Z):
+The set is built once per latent space and labeler (:func:`~neuralcol.samples.realistic.realistic_set`, cached
+beside the U(Z) test set) from the data set's meshes. Every run evaluates its final detector on it next to U(Z):
 
 * ``detection``: accuracy, FNR, FPR, skill ``(acc - majority) / (1 - majority)`` on the clear cases
   (``|PD| >= clear_eps * eps``), overall and per kind; ``detection_all`` on every labeled mesh;
@@ -14,110 +13,19 @@ final detector on it next to U(Z):
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from neuralcol.data.realistic import (
-    KINDS,
-    RealisticMeshes,
-    balanced_selection,
-    clear_mask,
-    make_realistic_meshes,
-    out_of_box,
-)
-from neuralcol.errors import UserInputError
+from neuralcol.data.realistic import KINDS, RealisticMeshes, clear_mask, out_of_box
 from neuralcol.handler.alm import ALMSettings
 from neuralcol.handler.resolve import detector_logits, displacement_stats, edge_strain, resolve_meshes
 from neuralcol.metrics.detection import detection_metrics, fnr_interval
 from neuralcol.nn.part_geometry import code_mesh_logits
-from neuralcol.stages.validate import LABEL_CLEARANCES
+from neuralcol.samples.realistic import evaluation_limit, pool_pd
 from neuralcol.utils.config import as_dict
-from neuralcol.utils.files import atomic_path
-from neuralcol.utils.hashing import settings_key
-
-BUILD_KEYS = ("seed", "n_acap_interp", "n_vertex_interp", "n_perturbed", "t_range", "perturb_scale", "clear_eps",
-              "per_class")
-
-
-def pool_pd(pool, vertices: np.ndarray, desc: str | None = None, clearance_limit: float | None = None) -> np.ndarray:
-    """Exact PD (n,) of meshes through a label pool; NaN where the labeler failed. ``clearance_limit``: free meshes'
-    clearances measured only up to this length (PD >= -limit; :meth:`~neuralcol.collision.labeler.ExactLabeler.
-    label_limited`); None: in full."""
-    if len(vertices) == 0:
-        return np.zeros(0)
-    if desc is not None:
-        pool.desc = desc
-    report = pool.label_report(np.asarray(vertices, np.float64), clearance_limit=clearance_limit)
-    return np.where(report.ok, report.labels.pd, np.nan)
-
-
-def evaluation_limit(cfg, eps: float) -> float | None:
-    """The clearance the realistic test and calibration sets (and their round trips) are labeled to:
-    ``clear_eps * eps`` with ``label_clearance: clear``, the most that the clear-case rule and the verdicts read
-    (a free mesh farther than that is clear either way; colliding meshes' PD is unchanged); None with ``full``
-    or ``clear_eps: 0``. Labeling free meshes to the whole ``clearance_cap`` costs 1.4x (SCAPE) to 2.5x (anny_body)
-    as much (docs/studies/operating_threshold.md)."""
-    c = as_dict(cfg)
-    how = str(c.get("label_clearance", "full"))
-    if how not in LABEL_CLEARANCES:
-        raise UserInputError(f"realistic.label_clearance={how!r}; use {' or '.join(LABEL_CLEARANCES)}")
-    limit = float(c["clear_eps"]) * float(eps)
-    return limit if how == "clear" and limit > 0 else None
-
-
-def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Path, eps: float,
-                  tag: str = "realistic", sources=None,
-                  clearance_limit: float | None = None) -> tuple[RealisticMeshes, np.ndarray, bool]:
-    """The realistic meshes of a data set and their exact PD, built and labeled once, then read from the cache.
-
-    The candidates (``n_acap_interp`` + ``n_vertex_interp`` + ``n_perturbed`` and the held-out meshes) are
-    labeled, then :func:`~neuralcol.data.realistic.balanced_selection` keeps the held-out meshes and up to
-    ``per_class`` clear colliding and as many clear free ones.
-
-    Args:
-        vertices, features, acap: the data set's meshes (N, V, 3), raw ACAP features (N, V, 9), ACAP transform.
-        heldout: the autoencoder's held-out mesh indices.
-        pool: label pool (its labeler's partition gives nothing here: only PD is kept).
-        cfg: the ``realistic`` config (sizes, seed, ranges).
-        folder: cache folder (the latent space's samples folder).
-        eps: the labeler's boundary width (``clear_eps`` is in its units).
-        tag: the cache file's prefix. sources: the data set rows ``vertices`` were taken from (recorded in the
-            cache key; None: all).
-        clearance_limit: the candidates' clearances are measured up to this length (:func:`evaluation_limit`;
-            recorded in the cache key); None: in full.
-
-    Returns:
-        (meshes, pd (M,) float64 with NaN where the labeler failed, read from the cache).
-    """
-    c = as_dict(cfg)
-    settings = {k: c[k] for k in BUILD_KEYS}
-    settings["heldout"] = [int(i) for i in np.asarray(heldout).reshape(-1)]
-    settings["eps"] = float(eps)
-    if sources is not None:
-        settings["sources"] = [int(i) for i in np.asarray(sources).reshape(-1)]
-    if clearance_limit is not None:
-        settings["clearance_limit"] = float(clearance_limit)
-    key = settings_key(settings)
-    path = Path(folder) / f"{tag}_{key}.npz"
-    if path.is_file():
-        with np.load(path) as z:
-            return RealisticMeshes(z["vertices"], z["kind"], z["source"], z["t"]), z["pd"], True
-    meshes = make_realistic_meshes(vertices, features, acap, heldout, int(c["n_acap_interp"]),
-                                   int(c["n_vertex_interp"]), int(c["n_perturbed"]), tuple(c["t_range"]),
-                                   float(c["perturb_scale"]), int(c["seed"]))
-    pd = pool_pd(pool, meshes.vertices, desc="labeling realistic candidates", clearance_limit=clearance_limit)
-    keep = balanced_selection(meshes.kind, pd, eps, float(c["clear_eps"]),  # clear_eps 0: every labeled mesh
-                              None if c["per_class"] is None else int(c["per_class"]), int(c["seed"]))
-    meshes, pd = RealisticMeshes(*(a[keep] for a in meshes)), pd[keep]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **meshes._asdict(), pd=pd, settings=json.dumps(settings))
-    return meshes, pd, False
 
 
 def _skill(m: dict) -> float:
@@ -131,41 +39,6 @@ def _detection(pred: np.ndarray, truth: np.ndarray) -> dict:
     m = detection_metrics(pred, truth)
     ci = fnr_interval(pred, truth)
     return {**m, "skill": _skill(m), "n_colliding": int(np.sum(truth)), "fnr_ci95": None if ci is None else list(ci)}
-
-
-
-
-
-def calibration_settings(cfg) -> dict:
-    """The ``realistic`` config of the calibration set: ``seed + calibration.seed_offset``, the candidate counts
-    times ``calibration.scale``, ``per_class = calibration.per_class``; everything else as the test set's."""
-    c = as_dict(cfg)
-    cal = dict(c.get("calibration") or {})
-    missing = {"seed_offset", "scale", "per_class"} - set(cal)
-    if missing:
-        raise UserInputError(f"realistic.calibration: missing {sorted(missing)}; give seed_offset, scale and per_class "
-                             "(conf/realistic/default.yaml)")
-    per_class = cal["per_class"]
-    if not (int(cal["seed_offset"]) != 0 and float(cal["scale"]) > 0 and (per_class is None or int(per_class) >= 1)):
-        raise UserInputError(f"realistic.calibration={cal}: need seed_offset != 0 (another draw than the test set's), "
-                             "scale > 0 and per_class >= 1 or null (every clear colliding mesh)")
-    out = {**c, "seed": int(c["seed"]) + int(cal["seed_offset"]),
-           "per_class": None if per_class is None else int(per_class)}
-    for key in ("n_acap_interp", "n_vertex_interp", "n_perturbed"):
-        out[key] = int(round(float(cal["scale"]) * int(c[key])))
-    return out
-
-
-def calibration_meshes(vertices, features, acap, heldout, pool, cfg, folder: str | Path,
-                       eps: float) -> tuple[np.ndarray, np.ndarray]:
-    """The realistic calibration set's clear meshes and exact verdicts, ``(vertices (C, V, 3), collides (C,))``:
-    :func:`realistic_set` with :func:`calibration_settings` (cached as ``realistic_calibration_<key>.npz``), the
-    held-out poses and unclear cases left out (the operating point is set and judged on clear cases)."""
-    c = calibration_settings(cfg)
-    meshes, pd, _ = realistic_set(vertices, features, acap, heldout, pool, c, folder, eps, tag="realistic_calibration",
-                                  clearance_limit=evaluation_limit(c, eps))
-    keep = np.isfinite(pd) & clear_mask(pd, eps, float(c["clear_eps"])) & (meshes.kind != KINDS.index("heldout"))
-    return meshes.vertices[keep], pd[keep] > 0
 
 
 def round_trip_pd(space, v: torch.Tensor, pool, desc: str = "labeling round trips",
@@ -212,7 +85,7 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
 
     Args:
         space: the latent space. net: the final detector.
-        meshes, pd: :func:`realistic_set`'s meshes and exact PD.
+        meshes, pd: :func:`~neuralcol.samples.realistic.realistic_set`'s meshes and exact PD.
         pool: label pool for the round trips and the handler's results.
         eps: the labeler's boundary width (``clear_eps`` is in these units).
         cfg: the ``realistic`` config (``clear_eps``, ``handler_inputs``, ``anchor``).

@@ -319,18 +319,3 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
     out["seconds"] = time.perf_counter() - t_start
     log(f"[speed] done in {out['seconds']:.1f} s")
     return out
-
-
-def speed_accuracy_table(sa: dict) -> list[str]:
-    """The summary lines of ``metrics["speed_accuracy"]``: one row per point, fastest first."""
-    def f(x, spec):
-        return "—" if x is None else format(x, spec)
-
-    lines = [f"speed against accuracy (torch threads: {sa['threads']}; {sa['n_timed']} test codes timed, "
-             f"decode {sa['decode_ms_per_sample']:.2f} ms/sample):",
-             "  method           variant                    samples/s   accuracy  FNR     scored on"]
-    for p in sorted(sa["points"], key=lambda p: -(p["samples_per_s"] or 0)):
-        lines.append(f"  {p['method']:<16} {p['variant']:<26} {f(p['samples_per_s'], '>9.4g')}   "
-                     f"{f(p['accuracy'], '.4f'):<8}  {f(p['fnr'], '.4f'):<6}  {p['n_scored']}")
-    lines += [f"  ({n})" for n in sa["notes"]]
-    return lines

@@ -60,6 +60,22 @@ def find_interrupted_run(new_dir: str | Path, multirun: bool = False) -> Path | 
     return None
 
 
+def run_to_resume(new_dir: str | Path, hydra_overrides, resume: bool, multirun: bool = False) -> Path | None:
+    """The earlier run directory this invocation continues, or None (it works in ``new_dir``).
+
+    Only with ``resume`` and no explicit ``hydra.run.dir=`` / ``hydra.sweep.dir=`` among ``hydra_overrides`` (an
+    explicit directory resumes in place): the newest interrupted run of the same overrides
+    (:func:`find_interrupted_run`). ``new_dir`` then records where the run went on (``resumed_in``).
+    """
+    explicit_dir = any(o.startswith(("hydra.run.dir=", "hydra.sweep.dir=")) for o in hydra_overrides)
+    if not resume or explicit_dir:
+        return None
+    earlier = find_interrupted_run(new_dir, multirun=multirun)
+    if earlier is not None:
+        RunDir(new_dir).resumed_in.write_text(f"{earlier}\n")
+    return earlier
+
+
 class RunDirLock:
     """Hold ``<run_dir>/.run.lock`` while a run works in ``run_dir`` (released when the process dies, even by
     SIGKILL, since it is an OS file lock)."""

@@ -301,7 +301,7 @@ def realistic_data(cfg) -> dict:
     (the pipeline's, for its held-out split) and the exact labels; no detector."""
     from neuralcol.data.realistic import KINDS
     from neuralcol.pipeline import RunContext
-    from neuralcol.stages.realistic import realistic_set
+    from neuralcol.samples.realistic import realistic_set
 
     t = time.perf_counter()
     ctx = RunContext(cfg)

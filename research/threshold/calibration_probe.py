@@ -49,7 +49,7 @@ def big_set(ctx, stage, labeler, seed: int, scale: float, tag: str):
     """A realistic set drawn like the run's test set: ``scale`` x the candidates, seed ``seed``, every clear case."""
     from omegaconf import OmegaConf
 
-    from neuralcol.stages.realistic import realistic_set
+    from neuralcol.samples.realistic import realistic_set
 
     cfg = OmegaConf.to_container(ctx.cfg.realistic, resolve=True)
     cfg.update(seed=int(seed), per_class=None, n_acap_interp=int(scale * cfg["n_acap_interp"]),

@@ -10,10 +10,13 @@ from omegaconf import DictConfig, OmegaConf
 
 from neuralcol.collision.backends import labeler_problems
 from neuralcol.errors import UserInputError
+from neuralcol.samples.realistic import LABEL_CLEARANCES
+from neuralcol.stages.cascade import cascade_problems
+from neuralcol.stages.detector import METHODS, OPERATING_SETS
+from neuralcol.stages.model_size import validate_model_size
+from neuralcol.stages.speed import speed_accuracy_problems
 
-METHODS = ("supv", "supv_bd", "active", "active_paper")
-OPERATING_SETS = ("auto", "calibration", "realistic", "both", "realistic_calibration")  # detector.operating_set
-LABEL_CLEARANCES = ("clear", "full")  # realistic.label_clearance
+SEARCH_COMMAND = "python -m experiments.model_size search"  # model_size=auto (docs/model_size.md)
 POOL_EXECUTORS = ("local", "dask")  # labeling.pool.executor (neuralcol.collision.pool.EXECUTORS)
 
 
@@ -149,18 +152,23 @@ def config_problems(cfg: DictConfig) -> list[str]:
             repair_settings(OmegaConf.to_container(cfg.handler.repair, resolve=True))
         except (TypeError, ValueError) as e:
             problems.append(f"handler.repair: {e}")
-    from neuralcol.stages.speed import speed_accuracy_problems
-
     problems += speed_accuracy_problems(_get(cfg, "speed_accuracy"))  # None (no such group): nothing to check
-    from neuralcol.stages.cascade import cascade_problems
-
     problems += cascade_problems(cfg)  # detector.cascade (absent: nothing to check)
     return problems
 
 
 def validate_run_config(cfg: DictConfig) -> None:
-    """Raise one :class:`UserInputError` listing every problem of ``cfg`` (nothing if it is fine)."""
+    """Raise one :class:`UserInputError` listing every problem of ``cfg`` (nothing if it is fine), then check
+    ``model_size`` (:func:`~neuralcol.stages.model_size.validate_model_size`; a run takes fixed sizes only)."""
     problems = config_problems(cfg)
     if problems:
         raise UserInputError("bad configuration: " + "; ".join(problems)
                              + " (override on the command line, e.g. detector.n_aug=2000)")
+    if _get(cfg, "model_size.mode") == "auto":
+        raise UserInputError(f"model_size=auto: the size search is a command of its own: {SEARCH_COMMAND} "
+                             "<your overrides> writes a preset of the chosen sizes; then run with model_size=<preset>")
+    validate_model_size(cfg)
+    searched_for = _get(cfg, "model_size.dataset")  # a preset of the size search names its data set
+    if searched_for is not None and searched_for != _get(cfg, "dataset.name"):
+        raise UserInputError(f"model_size: this preset holds the sizes searched for dataset={searched_for}, not "
+                             f"dataset={_get(cfg, 'dataset.name')}; run {SEARCH_COMMAND} for this data set")

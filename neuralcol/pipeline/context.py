@@ -1,15 +1,17 @@
 """The run context: one run's chain, built once from its config.
 
-data set -> ACAP features -> latent space -> exact labelers -> label pool -> oracle. ``experiments.run``, the
-diagnosis, the benchmarks and the studies all take these pieces from a :class:`RunContext` instead of assembling
-them; each piece is built on first use and kept. The stages themselves (``neuralcol/stages/``) receive what they
-need as arguments. File names come from :mod:`neuralcol.rundir`.
+data set -> ACAP features -> latent space (-> its fitted box) -> exact labelers -> label pool -> oracle. The pipeline
+(:mod:`neuralcol.pipeline.run`), the diagnosis, the benchmarks and the studies all take these pieces from a
+:class:`RunContext` instead of assembling them; each piece is built on first use and kept. The stages themselves
+(``neuralcol/stages/``) receive what they need as arguments. File names come from :mod:`neuralcol.rundir`.
 
     ctx = RunContext(cfg, run_dir)
     ds, feats = ctx.dataset, ctx.features
     space = ctx.latent_space().space
-    with ctx.pool(ctx.sample_labeler()) as pool:
-        oracle = ctx.oracle(pool)
+    labeler = ctx.sample_labeler()
+    with ctx.pool(labeler) as pool:
+        latent = ctx.fit_box(pool, labeler)   # a new space with the fitted box (or the same stage: box_fit off)
+        oracle = ctx.oracle(pool, latent)
 """
 
 from __future__ import annotations
@@ -33,14 +35,14 @@ from neuralcol.samples.cache import samples_cache_dir
 from neuralcol.samples.oracle import LatentOracle
 from neuralcol.stages.autoencoder import reference_spaces, train_or_load_latent_space
 from neuralcol.stages.box_check import probe_share
-from neuralcol.stages.box_fit import fit_box, fitted_key, set_scaled_box
+from neuralcol.stages.box_fit import fit_box, fitted_key, fitted_space
 from neuralcol.utils.files import write_json_atomic
 from neuralcol.utils.hashing import settings_key
 
 
 class LatentStage(NamedTuple):
     """The latent space of a run: the space, the autoencoder's report (``cache_key`` names the caches of its
-    labeled samples) and whether it was loaded from the cache."""
+    labeled samples; ``box_fit`` the fit of a fitted box) and whether the autoencoder was loaded from the cache."""
 
     space: LatentSpace
     report: dict
@@ -60,13 +62,7 @@ class RunContext:
         self.run_dir = None if run_dir is None else RunDir(run_dir)
         self.cache = CacheDir(cfg.paths.cache_dir)
         self._latent: LatentStage | None = None
-
-    def reconfigured(self, cfg: DictConfig) -> RunContext:
-        """A context of ``cfg`` (e.g. with the sizes a model-size search chose) sharing this one's data set and
-        ACAP features (so neither is loaded again; ``cfg`` must not change the data set or ``acap``)."""
-        other = RunContext(cfg, None if self.run_dir is None else self.run_dir.path)
-        other.dataset, other.features = self.dataset, self.features  # fills the cached properties
-        return other
+        self._fitted: LatentStage | None = None
 
     # ------------------------------------------------------------------ data
     @cached_property
@@ -120,23 +116,26 @@ class RunContext:
     def use_latent_space(self, space: LatentSpace, report: dict) -> LatentStage:
         """Use an already loaded latent space (``report["cache_key"]`` names its caches)."""
         self._latent = LatentStage(space, report, True)
+        self._fitted = None
         return self._latent
 
-    def fit_box(self, pool: LabelPool, labeler) -> dict | None:
-        """Fit the latent space's box to ``box_fit.band`` with labels from ``pool``
-        (:mod:`~neuralcol.stages.box_fit`); the probe is ``box_check``'s (size and seed). Afterwards the latent stage
-        holds the fitted space under its own cache key (saved there, so its test set, D_c and
-        :class:`~neuralcol.api.TrainedRun` never meet the paper's box) and ``report["box_fit"]``. The fit is cached
-        beside the paper box's labeled samples. Returns the fit, or None when ``box_fit`` is off.
+    def fit_box(self, pool: LabelPool, labeler) -> LatentStage:
+        """The latent space with its box fitted to ``box_fit.band`` with labels from ``pool``
+        (:mod:`~neuralcol.stages.box_fit`; the probe is ``box_check``'s size and seed), fitted once per context.
+
+        The fitted space is a new object (:func:`~neuralcol.stages.box_fit.fitted_space`; the space of
+        :meth:`latent_space` keeps the paper's box) with its own cache key, saved there, so its test set, D_c and
+        :class:`~neuralcol.api.TrainedRun` never meet the paper's box; ``report["box_fit"]`` holds the fit. The fit
+        itself is cached beside the paper box's labeled samples. With ``box_fit`` off: :meth:`latent_space`.
 
         ``labeler``: the labeler behind ``pool`` (it names the cache of labeled samples).
         """
         bf, bc = self.cfg.get("box_fit"), self.cfg.box_check
-        if bf is None or not bf.enabled:
-            return None
-        if self._latent is not None and "box_fit" in self._latent.report:  # fitted already
-            return self._latent.report["box_fit"]
         stage = self.latent_space()
+        if bf is None or not bf.enabled:
+            return stage
+        if self._fitted is not None:
+            return self._fitted
         space, report, key = stage.space, stage.report, stage.report["cache_key"]
         band, shrink, grow = (list(map(float, bf[k])) for k in ("band", "shrink", "grow"))
         n, seed = int(bc.n_probe), int(bc.seed)
@@ -145,19 +144,20 @@ class RunContext:
         fit_file = self.samples_dir(labeler) / f"box_fit_{tag}.json"
         if fit_file.is_file():
             fit = json.loads(fit_file.read_text())
-            set_scaled_box(space, space.box_lo.detach().clone(), space.box_hi.detach().clone(), fit["factor"])
         else:
             fit = fit_box(space, lambda sp: probe_share(sp, pool, n, seed, desc="fitting the box Z"), band,
                           shrink, grow)
             write_json_atomic(fit_file, {**fit, "settings": settings})
+        fitted = fitted_space(space, fit["factor"])  # (factor 1 too: the box as scaled_box rounds it)
         new_key = fitted_key(key, fit["factor"])
         path = self.cache.latent_space(new_key)
-        if new_key != key and not path.is_file():
-            path.parent.mkdir(parents=True, exist_ok=True)
-            space.meta = {**space.meta, "box_fit": {"factor": fit["factor"], "from": key}}
-            space.save(path)
-        self._latent = LatentStage(space, {**report, "cache_key": new_key, "box_fit": fit}, stage.from_cache)
-        return fit
+        if new_key != key:
+            fitted.meta = {**space.meta, "box_fit": {"factor": fit["factor"], "from": key}}
+            if not path.is_file():
+                path.parent.mkdir(parents=True, exist_ok=True)
+                fitted.save(path)
+        self._fitted = LatentStage(fitted, {**report, "cache_key": new_key, "box_fit": fit}, stage.from_cache)
+        return self._fitted
 
     @property
     def space(self) -> LatentSpace:
@@ -188,10 +188,12 @@ class RunContext:
         kw = {**OmegaConf.to_container(self.cfg.labeling.pool, resolve=True), **overrides}
         return LabelPool(labeler, **kw)
 
-    def oracle(self, pool: LabelPool) -> LatentOracle:
-        """Codes -> decoded meshes -> exact labels, through ``pool``."""
-        return LatentOracle(self.space, pool)
+    def oracle(self, pool: LabelPool, latent: LatentStage | None = None) -> LatentOracle:
+        """Codes of ``latent``'s space (default: :meth:`latent_space`) -> decoded meshes -> exact labels, through
+        ``pool``."""
+        return LatentOracle((latent or self.latent_space()).space, pool)
 
-    def samples_dir(self, labeler) -> Path:
-        """``<cache>/collision/<key>``: the labeled samples of this latent space and labeler."""
-        return samples_cache_dir(self.cache.path, self.latent_space().report["cache_key"], labeler)
+    def samples_dir(self, labeler, latent: LatentStage | None = None) -> Path:
+        """``<cache>/collision/<key>``: the labeled samples of ``latent`` (default: :meth:`latent_space`; its
+        report's ``cache_key``) and ``labeler``."""
+        return samples_cache_dir(self.cache.path, (latent or self.latent_space()).report["cache_key"], labeler)
