@@ -39,8 +39,8 @@ def main(argv: list[str] | None = None) -> None:
     _, ref_errors = ctx.references
     labeler = ctx.sample_labeler()
     with ctx.pool(labeler) as pool:
-        fit = ctx.fit_box(pool, labeler)
-    report = ctx.latent_space().report
+        fitted = ctx.fit_box(pool, labeler)  # box_fit is on: a new space with the fitted box and its own key
+    report, fit = fitted.report, fitted.report["box_fit"]
     out = {"overrides": list(args.overrides), "dataset": str(cfg.dataset.name), "kind": str(cfg.autoencoder.kind),
            "latent_dim": stage.space.dim, "cache_key": report["cache_key"],
            "space": {k: report.get(k) for k in ERRORS},

@@ -451,6 +451,42 @@ def test_full_labels_of_the_realistic_training_meshes_are_labeled_once(tmp_path)
     assert calls == [3, 3]
 
 
+def test_realistic_training_meshes_are_labeled_once_per_run(tmp_path, monkeypatch):
+    """D_c's realistic training meshes: the candidates are labeled in full once; the kept meshes' full labels are
+    taken from that labeling (not labeled again), and a second run labels nothing."""
+    from types import SimpleNamespace
+
+    from neuralcol.data.realistic import KINDS, RealisticMeshes
+    from neuralcol.samples import realistic as R
+
+    n, k = 12, 2
+    cand = np.random.default_rng(1).normal(size=(n, 5, 3))
+    monkeypatch.setattr(R, "make_realistic_meshes", lambda *a, **kw: RealisticMeshes(
+        cand, np.full(n, KINDS.index("acap_interp"), np.int8), np.zeros((n, 3), np.int64), np.zeros(n)))
+    labeled = []
+
+    class Pool:
+        desc = ""
+        labeler = SimpleNamespace(subsets=lambda pd: np.zeros(len(pd), np.int8))
+
+        def label_report(self, v, clearance_limit=None):
+            assert clearance_limit is None  # the training meshes are labeled in full
+            labeled.append(len(v))
+            pd = np.where(np.arange(len(v)) % 2 == 0, 1.0, -1.0) * (1 + v[:, 0, 0] ** 2)
+            return SimpleNamespace(ok=np.ones(len(v), bool), labels=SimpleNamespace(pd=pd, pd_sub=np.c_[pd, -pd]))
+
+    space = SimpleNamespace(n_parts=k, dim=3, encode=lambda v: torch.zeros(len(v), 3, dtype=torch.float64))
+    cfg = {"seed": 0, "n_acap_interp": n, "n_vertex_interp": 0, "n_perturbed": 0, "t_range": [0, 1],
+           "perturb_scale": 0.1, "clear_eps": 0, "per_class": 3}
+    rows = R.realistic_rows(space, np.zeros((4, 5, 3)), np.zeros((4, 5, 9)), None, [0, 1, 2], Pool(), cfg, tmp_path,
+                            0.01)
+    assert labeled == [n] and len(rows.pd) == 6 and rows.collides.sum() == 3
+    assert np.array_equal(rows.pd_sub[:, 0], rows.pd)  # PD_i from the one labeling
+    again = R.realistic_rows(space, np.zeros((4, 5, 3)), np.zeros((4, 5, 9)), None, [0, 1, 2], Pool(), cfg,
+                             tmp_path, 0.01)
+    assert labeled == [n] and np.array_equal(again.pd, rows.pd) and np.array_equal(again.vertices, rows.vertices)
+
+
 def test_operating_point_on_a_realistic_calibration_set(tmp_path):
     """detector.operating_set=realistic_calibration: the threshold is set on whole meshes apart from D_c, judged as
     detect(mesh) judges them (their codes and their own pair features), and folded into the bias; without the set,

@@ -14,7 +14,10 @@ labeled once per latent space and labeler:
   and mesh with ``detector.geometry.realistic_rows``): from the autoencoder's training meshes only, labeled in full
   (PD_i per sub-domain too) as rows of D_c (:func:`realistic_rows`).
 
-The candidates (ACAP and vertex interpolations, perturbations) come from :mod:`neuralcol.data.realistic`.
+The candidates (ACAP and vertex interpolations, perturbations) come from :mod:`neuralcol.data.realistic`. The sets
+share no mesh except the data set's held-out poses, candidates of both the test and the calibration set (kept in the
+first, left out of the second): on an empty cache those few meshes (the autoencoder's ``val_index``) are labeled once
+for each set. The training meshes are labeled once, in full (:func:`realistic_rows`).
 """
 
 from __future__ import annotations

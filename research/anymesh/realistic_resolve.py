@@ -13,7 +13,7 @@ then its repairs) instead of the repairs alone (the motions stay without a run).
 
 Per data set (its CPU preset, ``experiment=cpu_<name>``, composed with Hydra's compose API):
 
-1. the realistic set (``neuralcol.stages.realistic.realistic_set``: held-out poses, ACAP and vertex interpolations,
+1. the realistic set (``neuralcol.samples.realistic.realistic_set``: held-out poses, ACAP and vertex interpolations,
    perturbations; exact PD) is built, or read from the cache, with only the latent space the pipeline fits for its
    held-out split (the PCA space, fit in seconds); no detector is trained;
 2. its colliding meshes (PD > 0) are split into clear ones (``clear_mask``: PD >= ``realistic.clear_eps`` boundary

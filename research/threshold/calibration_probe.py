@@ -6,7 +6,7 @@ drawn like its realistic test set, offline (before a rule for the operating poin
 
 Per run (its own config, latent space and final detector):
 
-1. two realistic sets built like the run's realistic test set (``neuralcol.stages.realistic.realistic_set``: ACAP
+1. two realistic sets built like the run's realistic test set (``neuralcol.samples.realistic.realistic_set``: ACAP
    and vertex interpolations, perturbations of the held-out meshes; exact PD) with other seeds and ``--scale`` times
    the candidates, every clear case kept (``per_class`` unbounded): ``cal`` (seed 101) and ``eval`` (seed 202);
 2. the run's detector on each (``run.detect``: code and mesh; logits relative to the run's folded threshold);
