@@ -184,7 +184,8 @@ def search_main(argv: list[str]) -> None:
     c = doc["chosen"]
     where = "" if preset.parent == CONF / "model_size" else \
         f" (outside conf/model_size/: add 'hydra.searchpath=[file://{preset.parent.parent.resolve()}]')"
-    command = " ".join(["python -m experiments.run", *args.overrides, f"model_size={preset.stem}"])
+    run_overrides = [o for o in args.overrides if not o.startswith("model_size")]  # (the search's own settings)
+    command = " ".join(["python -m experiments.run", *run_overrides, f"model_size={preset.stem}"])
     print(f"model_size: chosen |Z_0| = {c['n_components']}, level 2 = {c['level2_dim']}, detector width "
           f"x{c['detector_width']:g} (evidence: {out / 'model_size.json'}); preset {preset}{where}; run with: "
           f"{command}", flush=True)
