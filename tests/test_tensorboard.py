@@ -34,6 +34,9 @@ def test_one_tensorboard_run_per_stage(tmp_path):
             "handler.n_inputs=4", "handler.verify_margins=[]", "n_example_meshes=0",
             "detector.tensorboard_examples=2"])
     metrics = run(cfg, tmp_path / "run")
+    from neuralcol.pipeline import STAGES
+
+    assert list(metrics["sittings"]["stage_seconds"]) == list(STAGES)  # every stage timed, in order, by its name
     tb = tmp_path / "run" / "tensorboard"
     assert sorted(p.name for p in tb.iterdir()) == ["autoencoder_level1", "autoencoder_level2", "data",
                                                      "detector_supv", "handling", "latent"]

@@ -8,4 +8,8 @@
 * :mod:`.markdown` and :mod:`.tradeoff_tables`: the tables of ``report.md``; :mod:`.plots`: the charts;
 * :mod:`.build`: all of it written into the output directory (``report.md``, ``table3.csv``, ``report.json``,
   ``*.png``).
+
+One run's own reporting (``python -m experiments.run``): :mod:`.summary` (the printed summary and the line per round),
+:mod:`.tensorboard` (the scalars and pictures beside the trainings' own) and :mod:`.run_report` (the pipeline's
+reporter that calls them).
 """

@@ -123,7 +123,8 @@ def run_pipeline(cfg: DictConfig, run_dir: str | Path, reporter: Reporter | None
             stage("close_pool", pools.close)
             stage("exports", steps.exports, cfg, rd, data, sampling, handling)
             summary = stage("summary", steps.summary, cfg, latent, sampling, detector)
-            metrics = {**data.metrics, **summary, "handling": None if handling is None else handling.metrics,
+            metrics = {**data.metrics, **{k: v for k, v in summary._asdict().items() if v is not None},
+                       "handling": None if handling is None else handling.metrics,
                        "realistic": None if real is None else real.metrics, "cascade": casc}
             speed = stage("speed", steps.speed, cfg, sampling, detector.net, metrics, rd.path, reporter.progress)
     except sitting.SittingOver as over:

@@ -331,24 +331,43 @@ def exports(cfg: DictConfig, rd: RunDir, data: DataResult, sampling: Sampling, h
 
 
 # -------------------------------------------------------------------------------------------------------- summary
-def summary(cfg: DictConfig, latent: LatentResult, sampling: Sampling, detector: DetectorResult) -> dict:
-    """``metrics.json``'s ``autoencoder``, ``latent``, ``detector`` and ``rounds`` (and ``model_size``: the choice
-    of the searched preset the run took its sizes from)."""
+class Summary(NamedTuple):
+    """Stage ``summary``: ``metrics.json``'s sections on the models.
+
+    Attributes:
+        autoencoder: the latent space's report (errors as fractions of the diagonal, sizes, ``cache_key``, the box
+            fit), whether it came from the cache, its stage time (s) and the PCA references' errors.
+        latent: |Z_all| (``dim``), K (``n_parts``), the U(Z) test set's collision fraction, the box probe.
+        detector: the detector's summary and its stage time (s).
+        rounds: the rounds' records.
+        model_size: the choice of the searched preset the run took its sizes from (``chosen``, accuracies,
+            ``budget``, ``default``, ``rule``), or None.
+    """
+
+    autoencoder: dict
+    latent: dict
+    detector: dict
+    rounds: list[dict]
+    model_size: dict | None
+
+
+def summary(cfg: DictConfig, latent: LatentResult, sampling: Sampling, detector: DetectorResult) -> Summary:
+    """The models' sections of ``metrics.json`` from the latent space, the sampling and the detector."""
     ae = sampling.latent.report
-    out = {
-        "autoencoder": {**{k: v for k, v in ae.items() if k not in ("train_index", "val_index")},
-                        "from_cache": latent.from_cache, "stage_seconds": latent.seconds,
-                        "references": sampling.reference_errors},
-        "latent": {"dim": sampling.latent.space.dim, "n_parts": sampling.latent.space.n_parts,
-                   "uniform_collision_fraction": detector.summary["test_set"]["base_rate"],
-                   "box_probe": sampling.box_probe},
-        "detector": {**detector.summary, "stage_seconds": detector.seconds},
-        "rounds": detector.rounds}
     ms = cfg.get("model_size")
+    chosen = None
     if ms is not None and ms.get("chosen") is not None:
-        out["model_size"] = {k: OmegaConf.to_container(ms[k]) if OmegaConf.is_config(ms[k]) else ms[k]
-                             for k in MODEL_SIZE_KEYS}
-    return out
+        chosen = {k: OmegaConf.to_container(ms[k]) if OmegaConf.is_config(ms[k]) else ms[k] for k in MODEL_SIZE_KEYS}
+    return Summary(
+        autoencoder={**{k: v for k, v in ae.items() if k not in ("train_index", "val_index")},
+                     "from_cache": latent.from_cache, "stage_seconds": latent.seconds,
+                     "references": sampling.reference_errors},
+        latent={"dim": sampling.latent.space.dim, "n_parts": sampling.latent.space.n_parts,
+                "uniform_collision_fraction": detector.summary["test_set"]["base_rate"],
+                "box_probe": sampling.box_probe},
+        detector={**detector.summary, "stage_seconds": detector.seconds},
+        rounds=detector.rounds,
+        model_size=chosen)
 
 
 # ---------------------------------------------------------------------------------------------------------- speed
