@@ -2,7 +2,7 @@
 # make run (seed 0) with torch's portable CPU kernels (ATEN_CPU_CAPABILITY=default) beside the machine's own
 # (AVX512 on this project's machine): does a run on another kernel set land inside the README's 3-seed band?
 #   research/threshold/kernel_set.sh            today's settings, beside research/exact_labels/remeasure.sh's make_run_s0
-#   research/threshold/kernel_set.sh rule_v2    rule v2's settings, beside research/threshold/rule_v2.sh's make_run_s0
+#   research/threshold/kernel_set.sh rule_v2    rule v2's settings, beside research/threshold/rule_runs.sh v2's make_run_s0
 # Read with:
 #   .venv/bin/python -m research.exact_labels.summary outputs/threshold/kernel_default_s0
 # Rerun the same command to go on (a finished run is skipped). Cache: $NEURALCOL_CACHE (default $HOME/neuralcol-cache).

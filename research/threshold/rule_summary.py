@@ -1,5 +1,5 @@
 """An operating threshold rule read against its criteria (docs/studies/operating_threshold.md), from its deciding
-runs (``research/threshold/rule_v1.sh``, ``rule_v2.sh``):
+runs (``research/threshold/rule_runs.sh v1|v2``):
 
     .venv/bin/python -m research.threshold.rule_summary [--dir outputs/threshold/rule_v2] [--out FILE]
 
