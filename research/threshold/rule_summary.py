@@ -7,6 +7,10 @@ Per run: the threshold the rule set (on the realistic calibration set apart from
 run (FNR <= target on D_c's realistic validation rows, recomputed offline from the run's detector), and what each
 gives on the run's grown realistic test set (clear cases): FNR with its exact 95 % interval, accuracy. Per data set:
 the thresholds' std across seeds. Then criteria (a)-(c) of the rule, each met or missed.
+
+What of the thresholds' spread the calibration set's size explains: per run, the std of the rule's threshold over
+bootstrap draws of as many colliding meshes as its calibration set holds, taken from its test set's colliding logits
+(the test set is drawn like the calibration set); what this leaves of the across-seed std is the networks' own spread.
 """
 
 from __future__ import annotations
@@ -29,6 +33,16 @@ def score(logit: np.ndarray, y: np.ndarray, t: float) -> dict:
             "n_colliding": int(y.sum())}
 
 
+def sampling_std(pos_logits: np.ndarray, n: int, target: float, draws: int = 2000, seed: int = 0) -> float:
+    """Std of :func:`~neuralcol.metrics.detection.fnr_threshold` over ``draws`` bootstrap sets of ``n`` colliding
+    logits drawn from ``pos_logits``: the threshold's spread from the calibration set's size alone."""
+    from neuralcol.metrics.detection import fnr_threshold
+
+    rng = np.random.default_rng(seed)
+    ones = np.ones(n, bool)
+    return float(np.std([fnr_threshold(rng.choice(pos_logits, n), ones, target) for _ in range(draws)], ddof=1))
+
+
 def read_run(run_dir: Path, target: float) -> dict:
     """Both rules' thresholds and test-set figures for one finished run (thresholds absolute: before folding)."""
     from neuralcol.api import load_run
@@ -41,8 +55,9 @@ def read_run(run_dir: Path, target: float) -> dict:
         logit, y = z["logit"][clear].astype(np.float64), z["pd"][clear] > 0
     val_logit, val_y = realistic_validation_logits(load_run(run_dir))
     t_today = fnr_threshold(val_logit, val_y, target)  # relative to the folded threshold
+    noise = sampling_std(logit[y], int(op["calibration"]["n_colliding"]), target)
     return {"run": run_dir.name, "rule": {"threshold": op["threshold"], **score(logit, y, 0.0),
-                                          "calibration": op["calibration"]},
+                                          "calibration": op["calibration"], "sampling_std": noise},
             "today": {"threshold": op["threshold"] + t_today, **score(logit, y, t_today),
                       "calibration_colliding": int(val_y.sum())}}
 
@@ -78,6 +93,7 @@ def main(argv=None) -> dict:
             out["sets"][name] = {
                 "seeds": len(rows), "threshold_std": float(th.std(ddof=1)) if len(rows) > 1 else None,
                 "threshold_std_today": float(th0.std(ddof=1)) if len(rows) > 1 else None,
+                "sampling_std": float(np.sqrt(np.mean([r["rule"]["sampling_std"] ** 2 for r in rows]))),
                 "a_fnr_on_target": a_ok,
                 "accuracy_change": float(np.mean([r["rule"]["accuracy"] - r["today"]["accuracy"] for r in rows]))}
     print()
@@ -85,7 +101,8 @@ def main(argv=None) -> dict:
         std = "-" if s["threshold_std"] is None else f"{s['threshold_std']:.2f}"
         std0 = "-" if s["threshold_std_today"] is None else f"{s['threshold_std_today']:.2f}"
         print(f"{name}: {s['seeds']} seeds; (a) FNR on target {sum(s['a_fnr_on_target'])}/{s['seeds']}; (b) threshold "
-              f"std {std} (today's rule {std0}); (c) accuracy {100 * s['accuracy_change']:+.2f} points")
+              f"std {std} (today's rule {std0}; of it the calibration set's size {s['sampling_std']:.2f}); (c) accuracy "
+              f"{100 * s['accuracy_change']:+.2f} points")
     if a.out:
         a.out.write_text(json.dumps(out, indent=1, default=float))
     return out
