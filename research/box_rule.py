@@ -1,4 +1,4 @@
-"""How the box Z is drawn against what keeps U(Z) informative (issue 40):
+"""How the box Z is drawn against what keeps U(Z) informative:
 ``python -m research.box_rule OUT [hydra overrides ...]``.
 
 For the run's latent space (the autoencoder or ``autoencoder=pca``, trained or taken from the cache) and its PCA

@@ -4,7 +4,7 @@ Variants: ``default`` (the pool's settings), ``notimeout`` (no chunk timeout, so
 (4 chunks in flight per worker thread instead of 2), ``chunk64`` (64 meshes per chunk instead of 32). Each
 variant: a local pool (2 processes) and a dask LocalCluster (2 processes x 1 thread) label the 71 SCAPE meshes
 repeated 8 times, 4 interleaved reps after a warm-up; prints local time / dask time per rep and the median
-(``dask_vs_pool`` of ``python -m bench.run --only dask``). Used for issue 16's note (dask_vs_pool 0.77-0.80):
+(``dask_vs_pool`` of ``python -m bench.run --only dask``). Used for the note on dask's speed (dask_vs_pool 0.77-0.80):
 none of the variants was a measured improvement (the reps spread more than the variants differ).
 """
 

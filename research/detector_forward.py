@@ -1,6 +1,6 @@
 """Detector forward, side by side: CP on the concatenation [S_0, part_i] (the paper's form, in one block: the
-code before stop 23) against CP with its first layer split (``CollisionDetector._cp``: the S_0 half once per
-sample), in one block and in row blocks of ``CollisionDetector.inference_block`` (the default since stop 23).
+code before the split) against CP with its first layer split (``CollisionDetector._cp``: the S_0 half once per
+sample), in one block and in row blocks of ``CollisionDetector.inference_block`` (the default).
 
     python -m research.detector_forward RUN_DIR [--batch 4096] [--repeats 30] [--threads 2] [--out FILE]
     python -m research.detector_forward RUN_DIR --fast-blocks 512 1024 2048 [--batch 4096]   # FastDetector blocks
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench.neural import concat_forward  # the forward before stop 23, also timed by `python -m bench.run`
+from bench.neural import concat_forward  # the paper's concatenated forward, also timed by `python -m bench.run`
 from neuralcol.nn.detector import CollisionDetector, load_detector
 from neuralcol.rundir import RunDir
 

@@ -1,4 +1,4 @@
-"""The experiments that decided issue 15's fixes, rerunnable: ``python -m research.diagnosis_ablations CMD ...``.
+"""The experiments that decided the diagnosis's fixes, rerunnable: ``python -m research.diagnosis_ablations CMD ...``.
 
 Every table of docs/studies/diagnosis_scape.md that is not produced by ``experiments.diagnose`` or a pipeline run
 comes from one of these commands (each prints its table and writes JSON with ``--out``). They use the shared caches of

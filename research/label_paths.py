@@ -1,12 +1,12 @@
-"""Issue 42's acceptance, labels for training against the path before it, each path on its own code, side by side.
+"""Labels for training against the labeling path before them, each path on its own code, side by side.
 
     PYTHONPATH=CHECKOUT python research/label_paths.py before|now RUN_DIR
 
 Labels 1 000 uniform codes (seed 777) of a finished SCAPE run on a 2-worker label pool and prints samples per second
-(after a 64-code warm-up that starts and compiles the workers): ``before``, issue 41's path (codes decoded in this
-process, full labels), run from a checkout of the code before issue 42's labeler work (commit 26f0965: its full label
-and far pass are issue 41's); ``now``, issue 42's (decoded in the workers, clearances capped at the targets' floor),
-run from main. Alternate the two a few times (docs/studies/training_labels.md).
+(after a 64-code warm-up that starts and compiles the workers): ``before``, the earlier path (codes decoded in this
+process, full labels), run from a checkout of the code before the labels-for-training work (commit 26f0965: its
+full label and far pass are the earlier path's); ``now``, the current path (decoded in the workers, clearances capped
+at the targets' floor), run from main. Alternate the two a few times (docs/studies/training_labels.md).
 """
 import sys
 

@@ -1,4 +1,4 @@
-"""The latent space of a preset without the detector (issue 40): ``python -m research.latent_check OUT [overrides]``.
+"""The latent space of a preset without the detector: ``python -m research.latent_check OUT [overrides]``.
 
 Trains (or loads from the cache) the run's latent space and its PCA references, fits its box (``box_fit``) and
 writes what a run would report about them: train and held-out vertex error of the space and of each reference,

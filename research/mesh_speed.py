@@ -1,4 +1,4 @@
-"""Issue 41: the one detector on users' meshes against the exact label of the same meshes, timed side by side.
+"""The one detector on users' meshes against the exact label of the same meshes, timed side by side.
 
     python -m research.mesh_speed RUN_DIR [--n 512] [--reps 3]
 

@@ -4,8 +4,8 @@ For each named group of run directories (one method, several seeds) prints mean 
 used (|D_c|), U(Z) accuracy and FNR at the run's decision threshold (the operating point where the run set one) and
 at logit 0, the U(Z) AUC (threshold-free, from ``test_predictions.npz``), the realistic set's (clear cases)
 accuracy, FNR and AUC (``realistic_predictions.npz``), and the detector-only handler's success; then, for each pair
-of groups, the gap of the means against the larger std (the issue's "each gap beyond the seeds' std"). Used for
-issue 41, item 3 (active against supv_bd and supv at equal labels).
+of groups, the gap of the means against the larger std (the criterion "each gap beyond the seeds' std"). Used to
+compare active against supv_bd and supv at equal labels.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 41 prototype: one detector over code and mesh, against the code-only detector, on a finished run's rows.
+"""Prototype: one detector over code and mesh, against the code-only detector, on a finished run's rows.
 
 Reads a finished run (its latent space, D_c, the shared U(Z) test set and realistic set from the cache), chooses
 per-sub-domain contact pairs (``neuralcol.nn.part_geometry``) on a stride of the decoded D_c, computes every row's

@@ -1,4 +1,4 @@
-"""Issue 41: finished runs scored at another operating point, from their saved predictions (no retraining).
+"""Finished runs scored at another operating point, from their saved predictions (no retraining).
 
 For each run directory: the detector's logits on the cascade's calibration set (``cascade.npz``), on the U(Z) test
 set (``test_predictions.npz``) and on the realistic set (``realistic_predictions.npz``, clear cases). The threshold

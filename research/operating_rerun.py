@@ -9,7 +9,7 @@ reads; the detector over code and mesh on each row's own stored features) and on
 mean_fnr_threshold`) and what the run's own test sets say at it: U(Z) (``test_predictions.npz``) and the realistic
 test meshes' clear cases (``realistic_predictions.npz``): accuracy, majority, FNR, skill ``(acc - maj) / (1 - maj)``.
 Every logit a run saved already has its operating threshold folded in, so thresholds are relative to it (the run's
-own rule lands at ~0). Used in stop 49 for the operating-point rule registered in docs/studies/operating_set.md.
+own rule lands at ~0). Used for the operating-point rule registered in docs/studies/operating_set.md.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""What limits the round trip (issue 40): ``python -m research.round_trip_size OUT [hydra overrides ...] --sizes ...``.
+"""What limits the round trip: ``python -m research.round_trip_size OUT [hydra overrides ...] --sizes ...``.
 
 For the run's data set, PCA latent spaces (vertex and ACAP-feature basis) of each size in ``--sizes``, fit on the
 autoencoder's training meshes, encode and decode the realistic set (the run's, from the cache, or built and labeled

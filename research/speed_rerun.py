@@ -6,8 +6,8 @@ Reads the run's latent space, final detector (as a function of codes), its ``spe
 (``.hydra/config.yaml``, ``metrics.json``), and its U(Z) test set from the shared sample cache (found by the run's
 latent-space key and the test seed), then times every method side by side in this one process as the run's last
 stage does (:func:`neuralcol.stages.speed.measure_speed_accuracy`) and prints the table. ``--set`` overrides a
-``speed_accuracy`` setting (e.g. ``--set n_fcl=0 --set n_meshlab=0`` to skip the slow references). Used in stop 48
-to measure the detector over code and mesh on codes after its batch-last fast path, against the exact verdict.
+``speed_accuracy`` setting (e.g. ``--set n_fcl=0 --set n_meshlab=0`` to skip the slow references). Used to
+measure the detector over code and mesh on codes after its batch-last fast path, against the exact verdict.
 """
 
 from __future__ import annotations

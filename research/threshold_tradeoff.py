@@ -1,7 +1,7 @@
 """Accuracy against FNR when the detector's decision threshold moves:
 ``python -m research.threshold_tradeoff SWEEP TEST``.
 
-Issue 15 asks for SCAPE accuracy >= 0.80 *and* FNR <= 0.25. FN outnumber FP among the detector's errors, so a
+The target is SCAPE accuracy >= 0.80 *and* FNR <= 0.25. FN outnumber FP among the detector's errors, so a
 lower threshold on the collision probability lowers the FNR; this study measures what it costs in accuracy, for
 every finished run of a sweep directory (``SWEEP/<n>/detector.pt`` and ``metrics.json``), on one labeled test
 store (an ``.h5`` of uniform samples, e.g. the 10^5-row SCAPE test set of ``experiments.scale_curve``). It writes

@@ -165,7 +165,7 @@ def test_decode_on_cuda(scape, scape_acap):
 
 
 def test_no_gradient_decode_equals_the_differentiable_one(scape, scape_acap):
-    """The numba right-hand side (``decode(..., fast=True)`` without a graph, issue 29) against the torch ops
+    """The numba right-hand side (``decode(..., fast=True)`` without a graph) against the torch ops
     of the differentiable decode, on real poses (large and small angles) and a near-identity pose (Taylor branch)."""
     feats = scape_acap.encode(scape.vertices[:6].to(torch.float64))
     feats = torch.cat([feats, scape_acap.identity_features(1, torch.float64) + 1e-5])
@@ -210,7 +210,7 @@ def test_decode_vertices_equals_full_decode_and_its_gradient():
 
 
 def test_acap_survives_pickling_with_the_same_decode():
-    """A pickled ACAP (the label pool's workers decode with one, issue 42) factorises its Laplacian again and
+    """A pickled ACAP (the label pool's workers decode with one) factorises its Laplacian again and
     decodes bit for bit like the original."""
     import pickle
 

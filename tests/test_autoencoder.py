@@ -87,7 +87,7 @@ def test_cache_reuse_and_save_load(tube_space, tube_dataset):
     other = OmegaConf.merge(cfg, {"level2": {"epochs": 5}})
     _, _, cached_other = train_or_load_latent_space(tube_dataset, feats, other, LATENT, 0, cache)
     assert not cached_other, "a different config trains a new model"
-    # the thread count is part of the key (issue 30): a latent space trained on the machine's threads is another one
+    # the thread count is part of the key: a latent space trained on the machine's threads is another one
     _, report_free, cached_free = train_or_load_latent_space(tube_dataset, feats, cfg, LATENT, 0, cache, threads=None)
     assert not cached_free and report_free["cache_key"] != report["cache_key"]
 
@@ -211,7 +211,7 @@ def test_cache_key_ignores_settings_spelled_out_at_their_neutral_value(tube_data
 
 def test_no_level2_trains_no_second_stage(tube_dataset, tube_space, tmp_path):
     """``level2_dim: 0`` (SCAPE's and anny_body's presets) is Z_all = Z_0: no level-2 module and no stage-2 fit
-    (before issue 31 code-free level-2 decoders trained for level2.epochs, learning a constant offset)."""
+    (earlier, code-free level-2 decoders trained for level2.epochs, learning a constant offset)."""
     _, _, feats, cfg, _ = tube_space
     latent = {**dict(LATENT), "level2_dim": 0}
     one = OmegaConf.merge(cfg, {"level1": {"epochs": 5}, "level2": {"epochs": 1}})

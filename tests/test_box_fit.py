@@ -1,4 +1,4 @@
-"""box_fit (issue 40): the paper's box scaled about its centre until a probe of U(Z) lies in the band."""
+"""box_fit: the paper's box scaled about its centre until a probe of U(Z) lies in the band."""
 
 from __future__ import annotations
 

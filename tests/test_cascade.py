@@ -1,4 +1,4 @@
-"""The certified cascade (issue 29): the band rule against every band enumerated, its guarantees on the calibration
+"""The certified cascade: the band rule against every band enumerated, its guarantees on the calibration
 set, applying it, the handler's verification through it, the pipeline stage's metrics and the API
 (``run.detect(x, certify=...)``, ``run.resolve(..., certify=...)``) on a small latent space of tubes."""
 

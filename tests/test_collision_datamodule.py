@@ -22,7 +22,7 @@ def test_batched_loader_gives_the_row_by_row_batches():
 
 
 def test_validation_batches_follow_the_training_batch_size(tmp_path):
-    """The validation loader's batches are the training batch size unless one is given (issue 42: the ranking term
+    """The validation loader's batches are the training batch size unless one is given (the ranking term
     compares a batch's rows, so at 8192 validation cost most of a paper-scale epoch); a bad size is one clear error."""
     import numpy as np
     import pytest
@@ -52,7 +52,7 @@ def test_validation_batches_follow_the_training_batch_size(tmp_path):
 
 def test_detector_module_logs_the_epoch_means_of_its_batches(tmp_path):
     """The detector's module logs each epoch's row-weighted means of its batches' losses and accuracy once, on the
-    last batch (issue 42), and the round callback's reading of ``val/accuracy`` after validation sees them: the
+    last batch, and the round callback's reading of ``val/accuracy`` after validation sees them: the
     values equal the losses recomputed batch by batch with the trained weights, short last batch included."""
     import lightning as L
     import numpy as np

@@ -86,7 +86,7 @@ def test_truncated_or_corrupted_file_is_named(tmp_path):
 
 
 def test_pair_features_are_kept_with_their_rows_and_checked(tmp_path):
-    """Issue 41: a store created for a detector that reads the mesh keeps each row's pair features."""
+    """A store created for a detector that reads the mesh keeps each row's pair features."""
     rng = np.random.default_rng(5)
     path = tmp_path / "dc.h5"
     g1, g2 = rng.normal(size=(4, 3, 3)), rng.normal(size=(2, 3, 3))

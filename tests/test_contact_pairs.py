@@ -1,5 +1,5 @@
-"""Contact-pair features (issue 27; what the detector over code and mesh reads since issue 41): analytic cases, hop
-neighbourhoods, gradients. The pair choice per sub-domain: tests/test_part_geometry.py."""
+"""Contact-pair features (what the detector over code and mesh reads): analytic cases, hop neighbourhoods,
+gradients. The pair choice per sub-domain: tests/test_part_geometry.py."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Contact repair (issue 27): the push on analytic triangle pairs, two spheres pushed into each other repaired by
+"""Contact repair: the push on analytic triangle pairs, two spheres pushed into each other repaired by
 the exact labeler's contacts with the far side left in place, the iteration cap and the step cap."""
 
 from __future__ import annotations

@@ -105,7 +105,7 @@ def test_losses_match_hand_computation():
 
 
 def test_ranking_loss_equals_the_mean_over_ordered_pairs_with_its_gradient():
-    """L_r as a masked sum (issue 42's faster form) is the mean of max(0, margin - gap) over the ordered pairs with
+    """L_r as a masked sum (the faster form) is the mean of max(0, margin - gap) over the ordered pairs with
     PD_a < PD_b taken by boolean indexing, value and gradient, ties in PD included (they are no pair)."""
     torch.manual_seed(3)
     s = torch.randn(64, 4, dtype=torch.float64, requires_grad=True)

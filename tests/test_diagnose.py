@@ -1,4 +1,4 @@
-"""The diagnosis kit (issue 15): projection quality, latent-space diagnostics, learning curves, the CLI."""
+"""The diagnosis kit: projection quality, latent-space diagnostics, learning curves, the CLI."""
 
 from __future__ import annotations
 

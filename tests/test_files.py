@@ -27,7 +27,7 @@ def test_atomic_path_moves_on_success_and_cleans_on_error(tmp_path):
 
 def test_two_writers_of_one_feature_cache(tmp_path, monkeypatch, tube_dataset):
     """Two runs of one new data set started together both encode its features and write the same cache
-    entry; with one shared temporary name the second writer's rename failed (stop 24)."""
+    entry; with one shared temporary name the second writer's rename failed."""
     barrier = threading.Barrier(2, timeout=30)
     savez = np.savez
 

@@ -1,4 +1,4 @@
-"""Seeded fuzzing of every reader of user files (issue 30, item 5): mesh files, data set folders, NPZ/HDF5 data
+"""Seeded fuzzing of every reader of user files: mesh files, data set folders, NPZ/HDF5 data
 sets, the labeler's command line and ``neuralcol.load_run``.
 
 Each case starts from a small valid file (an octahedron in OBJ, OFF, ASCII and binary PLY; a folder of three of
@@ -641,7 +641,7 @@ def test_tiny_run_loads(tmp_path, tiny_run_bytes):
 
 @pytest.mark.parametrize("stray", [b"", b"\x80\x04junk", b"PK\x03\x04 not a zip"])
 def test_a_stray_mesh_detector_file_is_never_read(tmp_path, tiny_run_bytes, stray):
-    """Runs before issue 41 may hold mesh_detector.pt (the separate mesh detector, folded into the run's detector):
+    """Older runs may hold mesh_detector.pt (the separate mesh detector, folded into the run's detector):
     whatever it holds, load_run ignores it."""
     run = tiny_run(tmp_path, tiny_run_bytes, {})
     (run / "mesh_detector.pt").write_bytes(stray)

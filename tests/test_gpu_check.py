@@ -62,7 +62,7 @@ def test_dry_run_numbers(dry_run):
     assert det["numbers"]["detector_compiled_label_flips"]["median"] == 0
     assert f"detector_compiled_us_per_sample_b{gc.DRY_PLAN.detector_batch}" in det["numbers"]
     paper = steps["paper_slice"]
-    # experiment=paper_scape's sizes (issue 42: a U(Z) test set of 1e5, 7 rounds to 5.5e5 labels)
+    # experiment=paper_scape's sizes (the paper's: a U(Z) test set of 1e5, 7 rounds to 5.5e5 labels)
     assert paper["info"]["sizes"]["n_init"] == 200_000 and paper["info"]["sizes"]["test_size"] == 100_000
     assert paper["info"]["sizes"]["max_rounds"] == 7
     est = {k.removeprefix("paper_scape_estimate_"): v["median"] for k, v in paper["numbers"].items()

@@ -215,7 +215,7 @@ def test_per_problem_constraint_with_rows():
 
 def test_handle_codes_in_batches_equals_one_batch_and_shows_progress(monkeypatch):
     """handle_codes over 5 codes in batches of 2 gives the single batch's answer (the problems are independent);
-    with ``desc`` it counts the codes on a progress bar (issue 42: the paper-scale run's handler on 10^4 codes
+    with ``desc`` it counts the codes on a progress bar (the paper-scale run's handler on 10^4 codes
     said nothing for tens of minutes)."""
     from collections import namedtuple
 

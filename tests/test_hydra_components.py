@@ -1,4 +1,4 @@
-"""Hydra builds the pipeline's components from their `_target_`s (issue 28): the composed configs instantiate to
+"""Hydra builds the pipeline's components from their `_target_`s: the composed configs instantiate to
 the classes the stages use, and swapping a `_target_` on the command line swaps the component."""
 
 from __future__ import annotations

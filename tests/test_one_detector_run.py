@@ -1,4 +1,4 @@
-"""The detector over code and mesh through the whole pipeline (issue 41, ``detector.inputs=code_and_mesh``): its
+"""The detector over code and mesh through the whole pipeline (``detector.inputs=code_and_mesh``): its
 pairs chosen on the bootstrap and the realistic training meshes, D_c storing every row's features, the realistic
 meshes among the rows, a run interrupted mid-rounds resuming with the same pairs, and ``load_run`` judging a mesh
 by its own geometry."""
@@ -53,7 +53,7 @@ def test_code_and_mesh_run_stores_features_resumes_and_judges_meshes(tmp_path, s
     d = metrics["detector"]
     assert d["resumed"] is True and d["inputs"] == "code_and_mesh" and d["n_pairs"] == len(pairs) > 0
     np.testing.assert_array_equal(np.load(run_dir / "geometry.npz")["pairs"], pairs)
-    assert "mesh_detector" not in metrics, "one detector: the separate mesh detector is gone (issue 41)"
+    assert "mesh_detector" not in metrics, "one detector: the separate mesh detector is gone"
     assert not (run_dir / "mesh_detector.pt").exists()
     n_real = d["n_realistic_rows"]
     assert n_real > 0

@@ -1,4 +1,4 @@
-"""PCA latent spaces and references (issue 40): fit against scikit-learn, exact round trips where the data lie in
+"""PCA latent spaces and references: fit against scikit-learn, exact round trips where the data lie in
 the span, the LatentSpace interface (decode_vertices, gradients, save/load, export) and the degenerate-box stop."""
 
 from __future__ import annotations

@@ -156,7 +156,7 @@ def test_import_without_torch():
 @pytest.mark.parametrize("workers", [0, 2])
 def test_limited_labels_on_the_pool_equal_the_capped_full_labels(setup, workers):
     """pool.label(v, clearance_limit=L): every executor returns the full labels with clearances capped at L (the
-    labels for training, issue 42); a labeler without ``label_limited`` has its full label capped the same way."""
+    labels for training); a labeler without ``label_limited`` has its full label capped the same way."""
     from neuralcol.collision.labeler import limit_clearance
 
     labeler, batch, ref = setup

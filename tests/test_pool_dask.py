@@ -78,7 +78,7 @@ def test_labels_equal_in_process_in_input_order(setup, cluster):
         order = np.random.default_rng(1).permutation(len(batch))
         assert_rows_equal(pool.label(batch[order]), reference(clean, batch[order]))
         assert pool.label(batch[:0]).pd.shape == (0,)
-        limit = 0.1 * float(-ref.pd.min())  # labels for training (issue 42): clearances capped, the rest equal
+        limit = 0.1 * float(-ref.pd.min())  # labels for training: clearances capped, the rest equal
         capped = Labels.stack([limit_clearance(clean.label(v), limit) for v in batch], clean.n_parts)
         assert not np.array_equal(capped.pd_sub, ref.pd_sub)
         assert_rows_equal(pool.label(batch, clearance_limit=limit), capped)
@@ -174,7 +174,7 @@ def test_lost_scheduler_raises(setup):
     finally:
         pool.close()
         if closer.is_alive():  # the pool can raise while the timer's close is still running: two concurrent
-            closer.join()      # closes of one LocalCluster fail inside distributed (UnboundLocalError, CI stop 23)
+            closer.join()      # closes of one LocalCluster fail inside distributed (UnboundLocalError, seen on CI)
         cluster.close()
 
 

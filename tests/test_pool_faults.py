@@ -142,7 +142,7 @@ def test_hang_times_out_and_is_reported(setup):
 
 def test_a_stopped_process_is_not_a_hung_chunk(setup, caplog):
     """``kill -STOP`` of the labeling process and its workers for longer than the timeout (Ctrl-Z, a paused
-    queue), during a slow chunk: when they go on, the chunk is not taken for hung (issue 42's paper-scale run
+    queue), during a slow chunk: when they go on, the chunk is not taken for hung (a paper-scale run
     lost 20 minutes to that: the pause counted as the chunk's running time). The timeout leaves the slow chunk's
     1.5 s of CPU time room on a loaded machine (a quarter of a core); the pause outlasts it."""
     clean, faulty, batch = setup

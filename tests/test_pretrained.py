@@ -1,4 +1,4 @@
-"""The SCAPE model shipped in pretrained/scape (issue 42): it loads from the checkout alone, detects and resolves
+"""The SCAPE model shipped in pretrained/scape: it loads from the checkout alone, detects and resolves
 SCAPE meshes, and its accuracy on fresh U(Z) codes labeled exactly is within 1.5 points of the figure its
 package.json documents."""
 
@@ -62,7 +62,7 @@ def test_detect_and_resolve_scape_meshes(shipped, scape):
 
 
 def test_accuracy_on_fresh_exact_labels_matches_the_documented_figure(shipped):
-    """2 000 fresh U(Z) codes (a seed no run uses), labeled exactly: the acceptance of issue 42 (within 1.5 points)."""
+    """2 000 fresh U(Z) codes (a seed no run uses), labeled exactly: the package's promise (within 1.5 points)."""
     from neuralcol.api.package import fresh_check
 
     result = fresh_check(shipped, 2000)

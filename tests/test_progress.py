@@ -1,4 +1,4 @@
-"""Progress off a terminal (issue 30, item 3): newline-terminated lines at a bounded rate, never ``\\r`` redraws;
+"""Progress off a terminal: newline-terminated lines at a bounded rate, never ``\\r`` redraws;
 bars stay on a terminal."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The realistic evaluation set (issue 27): construction, clear cases, out-of-box codes, and the handler's
+"""The realistic evaluation set: construction, clear cases, out-of-box codes, and the handler's
 displacement transfer (the user's mesh comes back, corrected)."""
 
 from __future__ import annotations
@@ -109,7 +109,7 @@ def test_balanced_selection():
 
 
 def test_report_real_meshes_block():
-    """The run's detector on the realistic set; the separate mesh detector's blocks of runs before issue 41
+    """The run's detector on the realistic set; the separate mesh detector's blocks of older runs
     (``mesh_detector``, ``detection_mesh``) are read without a crash and left out."""
     from experiments.reporting.markdown import realistic_rows
 
@@ -117,7 +117,7 @@ def test_report_real_meshes_block():
         m = {"detector": {"method": method},
              "realistic": {"n_clear": 300, "detection": {"accuracy": acc, "fnr": 0.5},
                            "round_trip": {"agreement": 0.7}, "handling": None}}
-        if mesh_acc is not None:  # a run from before issue 41
+        if mesh_acc is not None:  # an older run with the separate mesh detector
             m["mesh_detector"] = {"test": {"accuracy": 0.9}}
             m["realistic"]["detection_mesh"] = {"accuracy": mesh_acc, "fnr": 0.2}
         return m
@@ -148,9 +148,9 @@ def test_report_real_meshes_small_displacement_is_shown():
 
 
 def test_report_wall_time_per_stage():
-    """Table 3's wall time per stage (issue 42): minutes summed over sittings, mean ± std over the seeds of each
+    """Table 3's wall time per stage: minutes summed over sittings, mean ± std over the seeds of each
     method; a stage under half a minute in every run has no row but stays in the total; runs without ``sittings``
-    (before issue 42) give no table."""
+    (from before sittings were recorded) give no table."""
     from experiments.reporting.markdown import wall_time_markdown
 
     def run(m, detector_s, minutes, n=2):
@@ -171,7 +171,8 @@ def test_report_wall_time_per_stage():
 
 
 def test_report_wall_time_takes_the_rounds_record_where_a_killed_sitting_lost_the_detectors_time():
-    """neuralcol_s1 (issue 42): sittings killed inside the rounds before stop 57 lost 142 minutes of the detector's
+    """neuralcol_s1 (a paper-scale run): sittings killed inside the rounds, before each safe point recorded the
+    running stage's time, lost 142 minutes of the detector's
     time from sittings.json while its rounds kept their running totals. The table takes the larger of the two, grows
     the total by the difference and names the run; a run whose sittings hold the time keeps its own figure."""
     from experiments.reporting.markdown import wall_time_markdown

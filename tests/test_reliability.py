@@ -1,4 +1,4 @@
-"""Crash safety and determinism of whole runs (issue 9), with real processes killed by SIGKILL.
+"""Crash safety and determinism of whole runs, with real processes killed by SIGKILL.
 
 A run of the tiny preset on SCAPE is killed three times in a row at different points by fault injection
 (``NEURALCOL_FAULT``, see ``neuralcol/utils/faults.py``): in the middle of writing D_c rows, in the middle of
@@ -155,7 +155,7 @@ def test_a_finished_run_is_not_resumed_and_resume_false_starts_afresh(reference,
 
 
 def test_a_sitting_stops_at_a_round_and_the_same_command_finishes_the_run(reference, scape_dir):
-    """max_minutes (issue 42): a sitting stops at a safe point with exit code 75, saying where, and the same command
+    """max_minutes: a sitting stops at a safe point with exit code 75, saying where, and the same command
     goes on from there; the finished run equals the uninterrupted one, and sittings.json holds both sittings."""
     base, cache, ((dc_ref, m_ref), _) = reference
     out, data = base / "sittings", [str(scape_dir.parent), "max_minutes=600"]
@@ -185,7 +185,7 @@ def test_a_sitting_stops_at_a_round_and_the_same_command_finishes_the_run(refere
 
 
 def test_a_round_stopped_inside_goes_on_from_its_epoch(reference, scape_dir):
-    """detector.checkpoint_minutes (issue 42): inside a round the training state is saved at epochs' ends (here
+    """detector.checkpoint_minutes: inside a round the training state is saved at epochs' ends (here
     every epoch), with the round's best validation epoch so far. A sitting stopped there, or a run killed after
     such a save, goes on from the next epoch instead of training the round again, and ends equal to the
     uninterrupted run (same D_c, same metrics: the same epochs selected)."""

@@ -43,7 +43,7 @@ def _run(root: Path, name: str, size: tuple[int, int], method: str, seed: int, a
     (d / "metrics.json").write_text(json.dumps(metrics))
     hand = {"pd_before": HANDLER_PD, "pd_after": np.where(handler_success, -0.1, 1.0),
             "success": np.array(handler_success)}
-    if not new:  # a run from before issue 17: only the handler's full arrays, no predictions
+    if not new:  # a run from before per-input data were saved: only the handler's full arrays, no predictions
         np.savez(d / "handling" / "handling.npz", **hand)
         return
     np.savez(d / "handling" / "per_input.npz", **hand, pd_sub_before=PD_SUB[3:7])
@@ -131,7 +131,7 @@ def test_without_model_size_json_nothing_is_marked_and_a_bad_one_is_named(sweep,
 
 
 def test_table3_reads_logit_0_with_the_operating_point_beside_and_the_papers_figures(tmp_path):
-    """A run that records its last round at an operating point (issue 41) is read at logit 0 in the curves and Table
+    """A run that records its last round at an operating point is read at logit 0 in the curves and Table
     3 (the paper's decision), with the operating point as rows of their own; a data set of the paper's Table 3 gets
     the paper's figures beside (SCAPE's: 93.83 % / 5.15 %, equivalent size 663000)."""
     import shutil
@@ -193,8 +193,9 @@ def test_curves_mark_the_papers_table3_figure(tmp_path, monkeypatch):
 
 def test_equivalent_size_only_against_supv_bd_on_the_same_latent_space(tmp_path):
     """Table 3's equivalent supv_bd size reads supv_bd's curve on the method's own latent space (its own U(Z) test
-    set): issue 42 runs neuralcol's default (PCA space) beside the paper's configuration (bilevel autoencoder), and
-    pooling both supv_bd curves, or reading the other space's, compares accuracies of two different test sets."""
+    set): the paper-scale runs put neuralcol's default (PCA space) beside the paper's configuration (bilevel
+    autoencoder), and pooling both supv_bd curves, or reading the other space's, compares accuracies of two different
+    test sets."""
     s = tmp_path / "sweep"
     for name, m, acc, key in (("act", "active", 0.9, "A"), ("bdA", "supv_bd", 0.95, "A"),
                               ("bdB", "supv_bd", 0.7, "B"), ("sup", "supv", 0.8, "C")):
@@ -215,9 +216,9 @@ def test_equivalent_size_only_against_supv_bd_on_the_same_latent_space(tmp_path)
 
 
 def test_methods_at_equal_size_interpolated_within_each_latent_space(tmp_path):
-    """'active ≥ supv_bd ≥ supv at equal size' (issue 42): each method read at every size any method of its latent
-    space ran (exact, or ``~`` interpolated between its own sizes, never extrapolated), ranked there; a latent space
-    with one method gets no table."""
+    """'active ≥ supv_bd ≥ supv at equal size' (a paper-scale target): each method read at every size any method of
+    its latent space ran (exact, or ``~`` interpolated between its own sizes, never extrapolated), ranked there; a
+    latent space with one method gets no table."""
     from experiments.reporting.equal_size import equal_size_markdown, order_text, value_at
 
     assert value_at([2, 4], [0.8, 0.9], 3) == (pytest.approx(0.85), False)

@@ -1,4 +1,4 @@
-"""Same command, same numbers (issue 30): a run's models and metrics do not depend on the machine's core count.
+"""Same command, same numbers: a run's models and metrics do not depend on the machine's core count.
 
 Each run is a subprocess of ``python -m experiments.run`` with its own empty cache, started with
 ``OMP_NUM_THREADS=1`` or ``=2`` (what a user's shell on another machine amounts to). proc_hand's autoencoder is
@@ -63,7 +63,7 @@ def test_same_numbers_on_one_and_two_threads(tmp_path):
     assert not res["diffs"] and not res["only_a"] and not res["only_b"], res
     assert res["same"] > 50
     assert compare_arrays(one, two) == []  # predictions and detector weights, bit for bit
-    # the control: the machine's default threads (what the code did before issue 30) changes the latent space.
+    # the control: the machine's default threads (what the code did before it pinned them) changes the latent space.
     # Only its latent space is compared, and the autoencoder is trained before (and independently of) every later
     # stage (its cache key: data set, autoencoder settings, seed, threads), so the control skips those stages
     free, cache_free = _run(tmp_path, "free", 2, "threads=null", *AE_ONLY)

@@ -1,4 +1,4 @@
-"""The round callback's checkpoint state inside a round (issue 42, detector.checkpoint_minutes): the best
+"""The round callback's checkpoint state inside a round (detector.checkpoint_minutes): the best
 validation epoch so far travels with it, through a file read with weights_only=True, so a resumed round selects
 the weights an uninterrupted one would. The whole-run check (stop, kill, resume, same metrics) is in
 tests/test_reliability.py."""

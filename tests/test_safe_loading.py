@@ -1,4 +1,4 @@
-"""Checkpoints and cache files are read without unpickling code (issue 30, item 2).
+"""Checkpoints and cache files are read without unpickling code.
 
 A crafted file whose pickled object creates a marker file when unpickled stands for a malicious run directory
 or cache entry: every loader must refuse it with one clear error naming the file, and the marker must not
@@ -117,7 +117,7 @@ def test_load_run_refuses_a_pickled_detector_or_latent_space(tmp_path, tube_spac
     _write_malicious(RunDir(run).detector, marker)
     with pytest.raises(UnsafeFileError, match=_refused(RunDir(run).detector)):
         neuralcol.load_run(run)
-    # a mesh_detector.pt (the separate mesh detector, folded into the run's detector in issue 41) is never read
+    # a mesh_detector.pt (the separate mesh detector, folded into the run's detector) is never read
     _write_malicious(RunDir(run) / "mesh_detector.pt", marker)
     space.save(space_path)
     save_detector(RunDir(run).detector, detector_for_space(space, 8, 16), {"net": DET_NET}, {"name": "supv"}, 0.25)
@@ -282,7 +282,7 @@ def test_no_unpickling_load_is_left_in_the_code():
 
 
 # unpickling that is not reading a file: bytes this process pickled for its own label-pool workers (as
-# multiprocessing does with every task), so that torch's shared-memory tensors stay out of the workers (stop 49)
+# multiprocessing does with every task), so that torch's shared-memory tensors stay out of the workers
 IPC = {("neuralcol/samples/oracle.py", 'self.space = pickle.loads(state["space_bytes"])')}
 
 

@@ -1,4 +1,4 @@
-"""experiments.scale_curve (issue 16): labels in resumable pieces, one record per (size, method) kept across
+"""experiments.scale_curve: labels in resumable pieces, one record per (size, method) kept across
 reruns, the chart and table."""
 
 from __future__ import annotations

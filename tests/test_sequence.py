@@ -1,4 +1,4 @@
-"""neuralcol.handler.sequence (issue 43): a motion resolved with smooth corrections, on a toy where the answer is
+"""neuralcol.handler.sequence: a motion resolved with smooth corrections, on a toy where the answer is
 known: one vertex sinking through a floor, a resolver that lifts it well above."""
 
 from __future__ import annotations

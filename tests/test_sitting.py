@@ -1,4 +1,4 @@
-"""The time budget of a sitting (``max_minutes``, issue 42): where it stops, what it keeps."""
+"""The time budget of a sitting (``max_minutes``): where it stops, what it keeps."""
 
 from __future__ import annotations
 
@@ -68,7 +68,7 @@ def test_sitting_record_sums_the_stages_over_sittings(tmp_path):
 
 
 def test_a_sitting_killed_mid_stage_keeps_that_stage_up_to_its_last_safe_point(tmp_path, monkeypatch):
-    """Issue 42: a session's end kills a sitting from outside (no close); the stage it was in (the detector's
+    """A session's end kills a sitting from outside (no close); the stage it was in (the detector's
     rounds, for an hour) was missing from the wall time per stage. Each safe point (``sitting.check``) now writes the
     running stage's time so far (at most every 30 s), and the summary counts it."""
     from neuralcol.utils import sitting

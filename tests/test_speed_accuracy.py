@@ -1,4 +1,4 @@
-"""Speed against accuracy (issue 29): the stage on a latent space whose labels are known by hand, its chart, and the
+"""Speed against accuracy: the stage on a latent space whose labels are known by hand, its chart, and the
 report's section from a hand-made sweep.
 
 The latent space is a stand-in with the interface the stage reads (``decode``, ``faces``, ``rest_vertices``,
@@ -183,7 +183,7 @@ POINTS = [
      "fnr": 0.1, "n_timed": 4096, "n_scored": 3000},
     {"method": "latent detector", "variant": "float32 eager", "samples_per_s": 1.5e6, "accuracy": 0.93,
      "fnr": 0.1, "n_timed": 4096, "n_scored": 3000},
-    # the separate mesh detector's point, as runs before issue 41 recorded it: still charted and tabled
+    # the separate mesh detector's point, as older runs that had one recorded it: still charted and tabled
     {"method": "mesh detector", "variant": "decode + network", "samples_per_s": 900.0, "accuracy": None,
      "fnr": None, "n_timed": 32, "n_scored": 0},
     {"method": "cascade", "variant": "FNR<=0.01", "samples_per_s": 2000.0, "accuracy": 0.99, "fnr": 0.009,
@@ -249,7 +249,7 @@ def test_report_section_from_a_hand_made_sweep(tmp_path):
     sweep = tmp_path / "sweep"
     for i, scale in enumerate((1.0, 2.0, 4.0)):  # three seeds of active: the medians are the scale-2 run's
         _run(sweep, f"a{i}", "active", i, scale)
-    _run(sweep, "old", "active", 9, 1.0, points=False)  # before issue 29: named, never a crash
+    _run(sweep, "old", "active", 9, 1.0, points=False)  # a run without speed-accuracy points: named, never a crash
     out = tmp_path / "report"
     report_main([str(sweep), "--out", str(out), "--bench", str(tmp_path / "none.json")])
     assert (out / "speed_accuracy_toy.png").stat().st_size > 10_000

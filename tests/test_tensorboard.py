@@ -1,4 +1,4 @@
-"""TensorBoard as a researcher reads it (issue 18): one run per stage, round examples with their verdict."""
+"""TensorBoard as a researcher reads it: one run per stage, round examples with their verdict."""
 
 from pathlib import Path
 
@@ -48,12 +48,12 @@ def test_one_tensorboard_run_per_stage(tmp_path):
     assert {"samples/0", "samples/1"} <= set(tags["images"])
     assert [e.step for e in acc.Images("samples/0")] == sizes  # one picture per round
     assert len(list((tmp_path / "run" / "round_examples").glob("*.png"))) == 2 * len(sizes)
-    # the realistic set (issue 27), at the final |D_c|, beside U(Z)
+    # the realistic set, at the final |D_c|, beside U(Z)
     assert {"realistic/accuracy", "realistic/round_trip_agreement"} <= set(tags["scalars"])
     assert [e.step for e in acc.Scalars("realistic/accuracy")] == sizes[-1:]
     tags, _ = _tags(tb / "handling")
     assert "handling/success_rate" in tags["scalars"]
-    # issue 40: the latent space beside its PCA references; 19 training meshes cannot span |Z_all| = 32, so the
+    # the latent space beside its PCA references; 19 training meshes cannot span |Z_all| = 32, so the
     # references say why and log nothing (test_run.py checks them logged on SCAPE)
     tags, _ = _tags(tb / "latent")
     assert {"latent/val_error", "latent/uz_collision_share", "latent/round_trip_agreement"} <= set(tags["scalars"])

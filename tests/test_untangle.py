@@ -1,4 +1,4 @@
-"""neuralcol.handler.untangle (issue 43): the labeler's penetration vectors, the intersection-contour gradient
+"""neuralcol.handler.untangle: the labeler's penetration vectors, the intersection-contour gradient
 against finite differences, and untangling analytic cases and SCAPE meshes to collision-free."""
 
 from __future__ import annotations

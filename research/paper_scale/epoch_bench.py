@@ -1,4 +1,4 @@
-"""A detector training epoch through Lightning as before issue 42's changes and as now, alternated in one process:
+"""A detector training epoch through Lightning the former way and as now, alternated in one process:
 ``PYTHONPATH=. python research/paper_scale/epoch_bench.py [DETECTOR_PT] [--rows 20000] [--batch 1024] [--reps 3]``.
 
 Before: six ``log`` calls a step, validation batches of 8192 rows. Now: one ``log_dict`` an epoch of the batches'
@@ -25,7 +25,7 @@ from neuralcol.samples.datamodule import CollisionDataModule
 
 
 class StepLogging(DetectorLitModule):
-    """The module's logging before issue 42: every batch logs its six values (Lightning averages them)."""
+    """The module's former logging: every batch logs its six values (Lightning averages them)."""
 
     def _accumulate(self, split, values, bs, batch_idx=None):
         self.log_dict({f"{split}/{k}": v for k, v in zip(self.LOGGED, values)}, on_step=False, on_epoch=True,

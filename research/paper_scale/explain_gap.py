@@ -1,7 +1,7 @@
-"""Why a paper-scale run lands where it does, measured (issue 42, item 3): ``PYTHONPATH=. python
+"""Why a paper-scale run lands where it does, measured: ``PYTHONPATH=. python
 research/paper_scale/explain_gap.py RUN_DIR... [--gbt FILE...] [--out FILE]``.
 
-Three measurements per finished run, the three the issue names:
+Three measurements per finished run, one per candidate limit (labels, network, inputs):
 
 * **train against test**: the run's final detector (``detector.pt``; at logit 0 in the table, and at its operating
   point in the JSON) on its own D_c rows, split as

@@ -2,8 +2,8 @@
 detector: ``PYTHONPATH=. python research/paper_scale/handling_curve.py RUN_DIR... [--inputs N] [--out FILE]
 [--plot PNG]``.
 
-For every ``round_detectors/round_<k>.pt`` of a run (written since stop 56; earlier rounds of a run started before
-are missing and named), the handler guided by that detector alone, the paper's protocol and what
+For every ``round_detectors/round_<k>.pt`` of a run (rounds trained before round detectors were kept are
+missing and named), the handler guided by that detector alone, the paper's protocol and what
 ``handler.eval_every_round=true`` measures during a run, on the first N colliding codes of the run's U(Z) test set
 (the inputs of the run's own handler stage, which takes its first ``handler.n_inputs``), every result labeled
 exactly: success rate (PD reduced) and mean relative PD reduction over the successful inputs (paper: 94.81 % for
@@ -83,7 +83,7 @@ def table(results: list[dict]) -> str:
                          .replace(",", " "))
         if res["missing_rounds"]:
             lines.append(f"| {res['run']} | {res['method']} | {res['missing_rounds']} | | no saved detector "
-                         "(started before stop 56) | | |")
+                         "(started before round detectors were kept) | | |")
     return "\n".join(lines)
 
 

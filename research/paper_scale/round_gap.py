@@ -48,7 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     rd = RunDir(a.run_dir)
     path = rd.round_detector(a.round)
     if not path.is_file():
-        raise SystemExit(f"{path}: no saved detector of round {a.round} (saved since stop 56; round not finished?)")
+        raise SystemExit(f"{path}: no saved detector of round {a.round} "
+                         "(round not finished, or a run from before round detectors were kept?)")
     record = json.loads(rd.detector_rounds.read_text())["rounds"][a.round]
     cfg = OmegaConf.load(rd.config)
     if str(cfg.detector.get("inputs", "latent")) != "latent":

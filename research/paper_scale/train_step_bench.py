@@ -20,7 +20,7 @@ from neuralcol.nn.detector import detector_losses, load_detector, smooth_max
 
 
 def indexed_losses(out, pd, pd_sub, subset, **kw):
-    """detector_losses with the ranking term taken by boolean indexing (the form before issue 42)."""
+    """detector_losses with the ranking term taken by boolean indexing (the earlier form)."""
     agg = smooth_max(out.s, kw["temperature"])
     less = pd[:, None] < pd[None, :]
     l_r = F.relu(kw["margin"] - (agg[None, :] - agg[:, None]))[less].mean()

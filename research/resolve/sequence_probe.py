@@ -8,7 +8,7 @@ Frames: ACAP interpolation ``(1 - t) f_a + t f_b`` of two of the data set's mesh
 ``seed``) with at least ``min-colliding`` colliding frames by the exact label is kept. Then
 ``TrainedRun.resolve_sequence`` and, beside it, ``TrainedRun.resolve`` of all frames at once (each frame alone).
 Prints and writes: colliding frames in, frames free after, the correction's largest frame-to-frame change against
-the input's (the issue's ratio <= 2), median and largest displacement (fractions of the diagonal), seconds.
+the input's (the bar: ratio <= 2), median and largest displacement (fractions of the diagonal), seconds.
 """
 
 from __future__ import annotations

@@ -55,12 +55,12 @@ def main() -> None:
     field = SmoothField(faces, meshes.shape[1], us.stiffness, us.anchor)
     w = diffusion_operator(faces, meshes.shape[1])
     methods = {
-        "contact repair (stop 33)": lambda v: repair_contacts(v, faces, lab, 3.0 * lab.eps, 16, 60, operator=w,
-                                                             max_step=0.002 * lab.diag),
+        "contact repair": lambda v: repair_contacts(v, faces, lab, 3.0 * lab.eps, 16, 60, operator=w,
+                                                    max_step=0.002 * lab.diag),
         f"untangle {kw or 'defaults'}": lambda v: untangle(v, lab, us, field),
     }
     if "--untangle-only" in sys.argv:
-        methods.pop("contact repair (stop 33)")
+        methods.pop("contact repair")
     for name, fn in methods.items():
         free, med, top, secs = [], [], [], []
         for v in meshes:
