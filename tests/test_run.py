@@ -73,9 +73,9 @@ def test_anny_body_picks_the_large_mesh_presets_and_the_command_line_still_wins(
     body, scape = _compose(["dataset=anny_body"]), _compose(["dataset=scape"])
     body_train, scape_train = body.detector.geometry.train_set, scape.detector.geometry.train_set
     assert (body.realistic.n_acap_interp, body_train.n_acap_interp, body.speed_accuracy.n_exact,
-            body.detector.cascade.calibration_size) == (340, 340, 100, 500)
+            body.detector.cascade.calibration_size) == (1360, 340, 100, 500)
     assert (scape.realistic.n_acap_interp, scape_train.n_acap_interp, scape.speed_accuracy.n_exact,
-            scape.detector.cascade.calibration_size) == (1500, 1500, 300, 2000)
+            scape.detector.cascade.calibration_size) == (12000, 1500, 300, 2000)
     assert body.realistic.t_range == scape.realistic.t_range  # the rest of default.yaml is kept
     tiny = _compose(["dataset=anny_body", "realistic=tiny", "realistic.per_class=3"])
     assert (tiny.realistic.n_acap_interp, tiny.realistic.per_class) == (48, 3)
