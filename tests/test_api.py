@@ -85,7 +85,7 @@ def test_detect_encode_decode_label(trained):
 
 
 def test_the_separate_mesh_detector_options_say_it_was_folded(trained):
-    """Issue 41 folded the separate mesh detector into the run's one detector: an old caller's inputs='mesh' /
+    """The separate mesh detector was folded into the run's one detector: an old caller's inputs='mesh' /
     'auto' and constraint='mesh' get one line saying so and how to train it; 'latent' (what they always meant by
     default) still works."""
     z = _codes(trained, 3, 2)
@@ -104,7 +104,7 @@ def test_the_separate_mesh_detector_options_say_it_was_folded(trained):
 
 
 def test_a_stray_mesh_detector_file_is_ignored(run_dir, trained, tmp_path):
-    """A run directory from before issue 41 may still hold mesh_detector.pt: load_run never reads it (here it is
+    """An older run directory may still hold mesh_detector.pt: load_run never reads it (here it is
     not even a torch file) and the run answers as without it."""
     import neuralcol
 
@@ -565,7 +565,7 @@ def test_explain_gap_on_a_finished_run(run_dir):
 
 
 def test_each_round_keeps_the_detector_it_was_tested_with(run_dir, trained):
-    """``round_detectors/round_<k>.pt`` (issue 42, for the handler's curve afterwards): one per round, and each
+    """``round_detectors/round_<k>.pt`` (for the handler's curve afterwards): one per round, and each
     scores on the run's cached U(Z) test set exactly what the round recorded (the last round at logit 0)."""
     import copy
     import json

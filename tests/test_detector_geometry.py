@@ -1,4 +1,4 @@
-"""The detector over code and mesh (issue 41): geometry input per sub-domain, its checks, its gradients in the
+"""The detector over code and mesh: geometry input per sub-domain, its checks, its gradients in the
 code through the decoded vertices, save/load."""
 
 from __future__ import annotations
