@@ -85,7 +85,7 @@ def test_detect_encode_decode_label(trained):
 
 
 def test_the_separate_mesh_detector_options_say_it_was_folded(trained):
-    """Issue 41 folded the separate mesh detector into the run's one detector: an old caller's inputs='mesh' /
+    """The separate mesh detector was folded into the run's one detector: an old caller's inputs='mesh' /
     'auto' and constraint='mesh' get one line saying so and how to train it; 'latent' (what they always meant by
     default) still works."""
     z = _codes(trained, 3, 2)
@@ -104,7 +104,7 @@ def test_the_separate_mesh_detector_options_say_it_was_folded(trained):
 
 
 def test_a_stray_mesh_detector_file_is_ignored(run_dir, trained, tmp_path):
-    """A run directory from before issue 41 may still hold mesh_detector.pt: load_run never reads it (here it is
+    """An older run directory may still hold mesh_detector.pt: load_run never reads it (here it is
     not even a torch file) and the run answers as without it."""
     import neuralcol
 
@@ -486,6 +486,55 @@ def test_pack_run_loads_without_cache_or_data(run_dir, trained, tmp_path, monkey
         neuralcol.pretrained("nothing")
 
 
+def test_recalibrate_moves_the_threshold_of_a_package(run_dir, trained, tmp_path, monkeypatch, capsys):
+    """experiments.recalibrate on a packed run: the rule's threshold (FNR <= target on the realistic calibration
+    set) becomes the package's; logits and the cascade's calibration logits move by exactly that shift, the package
+    still loads (checksums rewritten), and measuring again finds nothing left to move."""
+    import neuralcol
+    from neuralcol.api.recalibrate import measure, rule_sets, write_recalibration
+    from neuralcol.stages.cascade import load_calibration
+
+    out = tmp_path / "pkg"
+    neuralcol.pack_run(run_dir, out)
+    cfg = OmegaConf.load(out / ".hydra" / "config.yaml")
+    cfg.paths.cache_dir = str(run_dir.parent / "cache")
+    monkeypatch.setenv("NEURALCOL_CACHE", cfg.paths.cache_dir)
+    realistic = OmegaConf.to_container(trained.cfg.realistic, resolve=True)
+    sets = rule_sets(out, cfg, {**realistic, "seed": 5})  # another draw than the run's own calibration set
+    cal_v, cal_y = sets.calibration
+    assert cal_y.any() and (~cal_y).any()
+    z = _codes(trained, 5, 7)
+    with neuralcol.load_run(out) as packed:
+        before = packed.detect(cal_v).logit.double().numpy()
+        result = measure(packed, sets, 0.2)
+        old = (packed.metrics["detector"].get("operating_point") or {}).get("threshold", 0.0)
+        cascade_before = load_calibration(out / "cascade.npz")[0] if (out / "cascade.npz").is_file() else None
+        op = write_recalibration(packed, result, sets, n_fresh=64, n_handler=2)
+    shift = result["shift"]
+    assert op["threshold"] == pytest.approx(old + shift)
+    assert (op["previous"] or {}).get("threshold", 0.0) == old
+    assert np.mean(before[cal_y] <= shift) <= 0.2
+    with neuralcol.load_run(out) as packed:  # check_package passes: the manifest lists the new files
+        after = packed.detect(cal_v).logit.double().numpy()
+        np.testing.assert_allclose(after, before - shift, atol=1e-4)
+        assert packed.detect(z).logit.shape == (5,)
+        again = measure(packed, sets, 0.2)
+        assert abs(again["shift"]) < 1e-4 and again["rule"]["calibration"]["fnr"] <= 0.2
+        assert packed.metrics["handling"]["inputs"]["n"] <= 2
+        if cascade_before is not None:
+            np.testing.assert_allclose(load_calibration(out / "cascade.npz")[0], cascade_before - shift, atol=1e-4)
+    manifest = json.loads((out / "package.json").read_text())
+    assert manifest["figures"]["threshold"] == pytest.approx(old + shift)
+    assert manifest["figures"]["u_z"]["seed"] == 20261129
+    from experiments.recalibrate import main as recalibrate_main
+
+    for args, says in (([str(tmp_path)], "not a finished run or a package"),
+                       ([str(out), "detector.operating_fnr=0.2"], "only realistic.KEY=VALUE")):
+        with pytest.raises(SystemExit) as stop:
+            recalibrate_main(args + ["--cache", cfg.paths.cache_dir, "--data", str(tmp_path)])
+        assert stop.value.code == 2 and says in capsys.readouterr().err
+
+
 def test_explain_gap_on_a_finished_run(run_dir):
     """research/paper_scale/explain_gap.py: the final detector re-scored on the U(Z) test set at logit 0 (undoing the
     operating point folded into its bias) equals the run's own last-round figure; the D_c rows' splits partition the
@@ -516,7 +565,7 @@ def test_explain_gap_on_a_finished_run(run_dir):
 
 
 def test_each_round_keeps_the_detector_it_was_tested_with(run_dir, trained):
-    """``round_detectors/round_<k>.pt`` (issue 42, for the handler's curve afterwards): one per round, and each
+    """``round_detectors/round_<k>.pt`` (for the handler's curve afterwards): one per round, and each
     scores on the run's cached U(Z) test set exactly what the round recorded (the last round at logit 0)."""
     import copy
     import json

@@ -1,7 +1,9 @@
-"""The detector over code and mesh (issue 41): geometry input per sub-domain, its checks, its gradients in the
+"""The detector over code and mesh: geometry input per sub-domain, its checks, its gradients in the
 code through the decoded vertices, save/load."""
 
 from __future__ import annotations
+
+import copy
 
 import numpy as np
 import pytest
@@ -510,8 +512,12 @@ def test_operating_point_on_a_realistic_calibration_set(tmp_path):
     collides = logit + rng.normal(scale=0.3, size=len(z)) > np.median(logit)
     last = {"accuracy": 0.5, "fnr": 0.5}
     test = CollisionRows(z.astype(np.float32), np.zeros(1), None, collides, None, None, None, None)
+    twin = copy.deepcopy(det)
     op = operating_point(det, space, None, {"operating_fnr": 0.1, "operating_set": "realistic_calibration"}, "key",
                          tmp_path, test, last, None, (meshes, collides))
+    auto = operating_point(twin, space, None, {"operating_fnr": 0.1, "operating_set": "auto"}, "key", tmp_path, test,
+                           dict(last), None, (meshes, collides))  # the default picks the set wherever it is built
+    assert auto["operating_set"] == "realistic_calibration" and auto["threshold"] == op["threshold"]
     assert op["operating_set"] == "realistic_calibration"
     assert op["threshold"] == pytest.approx(fnr_threshold(logit, collides, 0.1))
     assert op["calibration"]["n"] == len(z) and op["calibration"]["n_colliding"] == int(collides.sum())

@@ -68,14 +68,14 @@ def test_scape_cpu_preset_labels_26000_samples_with_the_detector_over_code_and_m
 
 
 def test_anny_body_picks_the_large_mesh_presets_and_the_command_line_still_wins():
-    """Issue 31: a data set's defaults may pick the evaluation stages' presets (conf/config.yaml lists dataset after
+    """A data set's defaults may pick the evaluation stages' presets (conf/config.yaml lists dataset after
     them); anny_body takes the *large_mesh ones and its own calibration size, other data sets keep the defaults."""
     body, scape = _compose(["dataset=anny_body"]), _compose(["dataset=scape"])
     body_train, scape_train = body.detector.geometry.train_set, scape.detector.geometry.train_set
     assert (body.realistic.n_acap_interp, body_train.n_acap_interp, body.speed_accuracy.n_exact,
-            body.detector.cascade.calibration_size) == (340, 340, 100, 500)
+            body.detector.cascade.calibration_size) == (1360, 340, 100, 500)
     assert (scape.realistic.n_acap_interp, scape_train.n_acap_interp, scape.speed_accuracy.n_exact,
-            scape.detector.cascade.calibration_size) == (1500, 1500, 300, 2000)
+            scape.detector.cascade.calibration_size) == (12000, 1500, 300, 2000)
     assert body.realistic.t_range == scape.realistic.t_range  # the rest of default.yaml is kept
     tiny = _compose(["dataset=anny_body", "realistic=tiny", "realistic.per_class=3"])
     assert (tiny.realistic.n_acap_interp, tiny.realistic.per_class) == (48, 3)
@@ -92,7 +92,7 @@ TRAIN_SET = ("seed", "n_acap_interp", "n_vertex_interp", "n_perturbed", "t_range
     (["experiment=cpu_anny_body"], (340, 130, 130, 150)), (["experiment=paper_anny_body"], (340, 130, 130, 150)),
     (["detector=tiny"], (48, 16, 16, 16)), (["dataset=anny_body", "detector=tiny"], (48, 16, 16, 16))])
 def test_realistic_training_meshes_of_the_one_detector(overrides, sizes):
-    """Issue 41: the realistic training meshes moved from mesh_detector.train_set to detector.geometry.train_set with
+    """The realistic training meshes moved from mesh_detector.train_set to detector.geometry.train_set with
     the values of before (anny_body: large_mesh's sizes through dataset.cpu.geometry_train_set; detector=tiny: the
     old mesh_detector=tiny's), so their cache key (a hash of these values) is unchanged."""
     ts = OmegaConf.to_container(_compose(overrides).detector.geometry.train_set, resolve=True)
@@ -104,13 +104,13 @@ def test_realistic_training_meshes_of_the_one_detector(overrides, sizes):
 
 
 def test_make_run_preset_labels_12000_samples():
-    """Issue 41 item 4 (stop 49): `make run` re-sized to its 10-minute budget, 4 rounds of 2 000 after 4 000."""
+    """`make run` sized to its 10-minute budget, 4 rounds of 2 000 after 4 000."""
     cpu = _compose([]).dataset.cpu
     assert (cpu.n_init, cpu.n_aug, cpu.max_rounds, cpu.n_init + cpu.max_rounds * cpu.n_aug) == (4000, 2000, 4, 12000)
 
 
 def test_paper_scale_scape_presets_have_the_papers_sizes():
-    """Issue 42: experiment=paper_scape is the paper's configuration (bilevel autoencoder, 3000 epochs a level, the
+    """experiment=paper_scape is the paper's configuration (bilevel autoencoder, 3000 epochs a level, the
     latent-only detector at p > 0.5, Algorithm 1), experiment=paper_scape_neuralcol neuralcol's defaults, both at
     N_init 2e5, N_aug 5e4, 7 rounds (5.5e5 labels), 100 / 50 epochs, 1e4 handler inputs, a U(Z) test set of 1e5."""
     paper, ours = _compose(["experiment=paper_scape"]), _compose(["experiment=paper_scape_neuralcol"])
@@ -150,7 +150,7 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
     assert saved["detector"]["method"] == "active" and saved["detector"]["test_set"]["n"] == 200
     assert (tmp_path / "run" / "detector.pt").is_file() and (tmp_path / "run" / "dc.h5").is_file()
     assert sum(saved["autoencoder"]["partition_sizes"]) == 2161
-    # issue 40: PCA at the same |Z_all| beside the autoencoder, the box probe, the round trips of both
+    # PCA at the same |Z_all| beside the autoencoder, the box probe, the round trips of both
     refs = saved["autoencoder"]["references"]
     assert set(refs) == {"vertex_pca", "acap_pca"}
     assert 0 < refs["vertex_pca"]["train_mean_vertex_error"] < refs["vertex_pca"]["val_mean_vertex_error"] < 0.05
@@ -176,7 +176,7 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
 
     from neuralcol.metrics.detection import detection_metrics
 
-    # the realistic set (issue 27): every run evaluates on meshes nobody trained on, labeled exactly
+    # the realistic set: every run evaluates on meshes nobody trained on, labeled exactly
     r = saved["realistic"]
     kinds = r["kinds"]  # realistic=tiny: the 14 held-out meshes, then at most 6 clear colliding and as many free
     assert kinds["heldout"] == 14 and sum(kinds.values()) == r["n"] <= 14 + 12
@@ -189,14 +189,14 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
             assert detection_metrics(logit[clear] > 0, pd[clear] > 0)["accuracy"] == r["detection"]["accuracy"]
         if "handled" in f:
             assert (pd[f["handled"]] > 0).all() and len(f["handled"]) == r["handling"]["n"] <= 4
-            by_kind = r["handling"]["verified_by_kind"]  # issue 43: every handled input has one kind
+            by_kind = r["handling"]["verified_by_kind"]  # every handled input has one kind
             assert sum(k["n"] for k in by_kind.values()) == r["handling"]["n"]
             freed = int((np.nan_to_num(f["handled_pd_after"], nan=1.0) <= 0).sum())
             assert sum(k["freed"] for k in by_kind.values()) == freed
             renders = r["handling"]["renders"]  # one before/after picture per kind present
             assert set(renders) == {k for k, v in by_kind.items() if v["n"]}
             assert all((tmp_path / "run" / "realistic_renders" / name).is_file() for name in renders.values())
-    # one detector (issue 41): no separate mesh detector beside it, in the metrics or the run directory
+    # one detector: no separate mesh detector beside it, in the metrics or the run directory
     assert "mesh_detector" not in saved and "detection_mesh" not in r
     assert not (tmp_path / "run" / "mesh_detector.pt").exists()
     cached = list((tmp_path / "cache" / "collision").glob("*/realistic_[0-9a-f]*.npz"))
@@ -229,9 +229,9 @@ def test_run_on_scape(tmp_path, scape_dir, capsys):
 
 @pytest.mark.slow
 def test_scape_autoencoder_cpu_preset(tmp_path, scape_dir):
-    """Acceptance of issue 4 (slow, ~5 min): the CPU preset of the bilevel autoencoder (|Z_0| = 8, level-2 codes
-    of 3: ``dataset=scape_k8l3``) reaches <= 1% mean vertex error on the training meshes. SCAPE's default since
-    issue 17 (16 components, no level 2) trades training error (1.5 %) for held-out error (4.9 % against 7.8 %)
+    """Slow (~5 min): the CPU preset of the bilevel autoencoder (|Z_0| = 8, level-2 codes
+    of 3: ``dataset=scape_k8l3``) reaches <= 1% mean vertex error on the training meshes. SCAPE's default
+    (16 components, no level 2) trades training error (1.5 %) for held-out error (4.9 % against 7.8 %)
     and trains about 3x longer: docs/studies/autoencoder_cpu_preset.md."""
     from experiments.run import run
 
@@ -301,7 +301,7 @@ def test_tiny_multirun_then_report(tmp_path, scape_dir):
     assert proc.returncode == 0, proc.stderr[-3000:]
     text = (sweep / "report.md").read_text()
     assert "Table 3 layout" in text and "equivalent supv_bd size" in text and "detector parameters" in text
-    # the "real meshes" block (issue 27): every run of the sweep evaluated the realistic set
+    # the "real meshes" block: every run of the sweep evaluated the realistic set
     assert "real meshes: accuracy, detector" in text and "real meshes: resolve, collision-free" in text
     rows = list(__import__("csv").DictReader(open(sweep / "table3.csv")))
     assert [r["method"] for r in rows] == ["supv_bd", "active"] and rows[0]["n_seeds"] == "2"

@@ -216,7 +216,8 @@ def detector(cfg: DictConfig, data: DataResult, sampling: Sampling, run_dir, log
         real_rows = realistic_rows(s.latent.space, ds.vertices.numpy(), feats.features.numpy(), feats.acap,
                                    report["train_index"], s.pool, det.geometry.train_set, s.samples_dir, eps)
     cal_meshes = None
-    if det.get("operating_fnr") is not None and det.get("operating_set") == "realistic_calibration":
+    if det.get("operating_fnr") is not None and cfg.realistic.enabled \
+            and det.get("operating_set") in ("auto", "realistic_calibration"):
         # the realistic calibration set: drawn like the test set with its own seed, its held-out meshes left out
         cal_meshes = calibration_meshes(ds.vertices.numpy(), feats.features.numpy(), feats.acap, report["val_index"],
                                         s.pool, cfg.realistic, s.samples_dir, eps)

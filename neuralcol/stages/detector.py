@@ -144,7 +144,8 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
     * ``realistic_calibration``: ``calibration_meshes`` ``(vertices (C, V, 3), collides (C,))``, a realistic set
       apart from D_c drawn like the realistic test set
       (:func:`~neuralcol.samples.realistic.calibration_meshes`), judged as ``detect(mesh)`` judges a mesh;
-    * ``auto``: ``realistic`` where D_c holds such rows, else ``calibration``.
+    * ``auto``: ``realistic_calibration`` where ``calibration_meshes`` are given (a run with the realistic stage),
+      else ``realistic`` where D_c holds such rows, else ``calibration``.
 
     The last round's test metrics become those at the threshold; the ones at logit 0 stay under ``at_logit_0``.
 
@@ -165,8 +166,9 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
     if store is not None and where in ("realistic", "auto", "both"):  # only the realistic validation rows are read
         rows = store.read_rows((store.column("origin") == Origin.REALISTIC) & store.split_mask())
     found = rows is not None and rows.geometry is not None and len(rows.z) > 0
-    if where == "auto":  # the realistic rows where there are (a detector over code and mesh), else the calibration set
-        where = "realistic" if found else "calibration"
+    if where == "auto":  # the realistic calibration set, else D_c's realistic rows, else the calibration codes
+        has_meshes = calibration_meshes is not None and len(calibration_meshes[0]) > 0
+        where = "realistic_calibration" if has_meshes else "realistic" if found else "calibration"
     sets = []
     if where in ("realistic", "both"):
         if not found:
