@@ -1,8 +1,8 @@
 """Set a finished run's (or a package's) operating point again, on a realistic calibration set drawn with today's
 settings, and see what it gives on the realistic test set:
 
-    python -m experiments.recalibrate RUN_DIR [realistic.KEY=VALUE ...] [--target 0.1] [--write] [--fresh N] [--handler N]
-        [--cache DIR] [--data DIR]
+    python -m experiments.recalibrate RUN_DIR [realistic.KEY=VALUE ...] [--target 0.1] [--write] [--fresh N]
+        [--handler N] [--cache DIR] [--data DIR] [--out FILE]
 
 Without ``--write`` it only measures: the run's threshold and the rule's (FNR <= target on the calibration set's
 clear colliding meshes), each on the calibration and the test set (FNR with its exact 95 % interval, accuracy).

@@ -101,8 +101,8 @@ def main(argv=None) -> dict:
         std = "-" if s["threshold_std"] is None else f"{s['threshold_std']:.2f}"
         std0 = "-" if s["threshold_std_today"] is None else f"{s['threshold_std_today']:.2f}"
         print(f"{name}: {s['seeds']} seeds; (a) FNR on target {sum(s['a_fnr_on_target'])}/{s['seeds']}; (b) threshold "
-              f"std {std} (today's rule {std0}; of it the calibration set's size {s['sampling_std']:.2f}); (c) accuracy "
-              f"{100 * s['accuracy_change']:+.2f} points")
+              f"std {std} (today's rule {std0}; of it the calibration set's size {s['sampling_std']:.2f}); "
+              f"(c) accuracy {100 * s['accuracy_change']:+.2f} points")
     if a.out:
         a.out.write_text(json.dumps(out, indent=1, default=float))
     return out
