@@ -160,6 +160,17 @@ def check_package(run_dir: str | Path) -> dict:
 FRESH_SEED = 20261127
 
 
+def fresh_labels(run, n: int, seed: int):
+    """``n`` fresh codes from U(Z) of ``seed``, labeled exactly through the run's label pool as its training targets
+    were (clearances capped at ``detector.targets.pd_floor`` where set: the same verdicts); failed rows dropped."""
+    from neuralcol.samples.uniform import uniform_codes
+
+    floor = OmegaConf.select(run.cfg, "detector.targets.pd_floor")
+    oracle = run.context().oracle(run.label_pool())
+    oracle = oracle if floor is None else oracle.for_training(float(floor))
+    return oracle(uniform_codes(run.space, int(seed), 0, int(n)), desc="labeling fresh U(Z) codes").without_failures()
+
+
 def fresh_check(run, n: int = 2000, seed: int = FRESH_SEED) -> dict:
     """The run's detector (its verdict as :meth:`~neuralcol.api.TrainedRun.detect` gives it: the operating
     threshold, ``detector.operating_fnr``, is folded into the saved network) on ``n``
@@ -171,13 +182,7 @@ def fresh_check(run, n: int = 2000, seed: int = FRESH_SEED) -> dict:
     import numpy as np
     import torch
 
-    from neuralcol.samples.uniform import uniform_codes
-
-    z = uniform_codes(run.space, int(seed), 0, int(n))
-    floor = OmegaConf.select(run.cfg, "detector.targets.pd_floor")
-    oracle = run.context().oracle(run.label_pool())
-    oracle = oracle if floor is None else oracle.for_training(float(floor))
-    lab = oracle(z, desc="labeling fresh U(Z) codes").without_failures()
+    lab = fresh_labels(run, n, seed)
     pred = run.detect(torch.as_tensor(lab.z)).collides.cpu().numpy()
     y = np.asarray(lab.collides, bool)
     acc = float(np.mean(pred == y))

@@ -115,16 +115,6 @@ def measure(run, sets: RuleSets, target: float) -> dict:
             "rule": {"threshold": base + shift, **{k: _score(logits[k], ys[k], shift) for k in logits}}}
 
 
-def _fresh_labels(run, n: int):
-    """``n`` fresh U(Z) codes (seed :data:`UZ_SEED`) labeled exactly, as the run's training targets label them."""
-    from neuralcol.samples.uniform import uniform_codes
-
-    floor = OmegaConf.select(run.cfg, "detector.targets.pd_floor")
-    oracle = run.context().oracle(run.label_pool())
-    oracle = oracle if floor is None else oracle.for_training(float(floor))
-    return oracle(uniform_codes(run.space, UZ_SEED, 0, int(n)), desc="labeling fresh U(Z) codes").without_failures()
-
-
 def _uz_at(run, shift: float, fresh) -> dict:
     """U(Z) figures at logit ``shift`` of the current net: the run's test set where it is saved, else the ``fresh``
     labeled codes."""
@@ -179,12 +169,12 @@ def shift_saved_decision(path: Path, shift: float) -> None:
 def write_recalibration(run, result: dict, sets: RuleSets, n_fresh: int = 10000, n_handler: int = 500) -> dict:
     """Move ``run``'s threshold to ``result["rule"]`` (from :func:`measure`) and rewrite the files that depend on it
     (see the module's docstring). Returns the new ``detector.operating_point``."""
-    from neuralcol.api.package import documented_figures, sha256
+    from neuralcol.api.package import documented_figures, fresh_labels, sha256
     from neuralcol.stages.cascade import load_calibration, save_calibration
 
     rd = RunDir(run.run_dir)
     shift = float(result["shift"])
-    fresh = _fresh_labels(run, n_fresh)
+    fresh = fresh_labels(run, n_fresh, UZ_SEED)
     uz = _uz_at(run, shift, fresh)
     shift_saved_decision(rd.detector, shift)
     if rd.cascade.is_file():
