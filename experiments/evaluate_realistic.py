@@ -18,8 +18,8 @@ import yaml
 from omegaconf import OmegaConf
 
 from neuralcol.api import load_run
-from neuralcol.handler.contact_repair import repair_from_config
 from neuralcol.handler.resolve import alm_settings
+from neuralcol.repair.settings import repair_from_config
 from neuralcol.samples.realistic import evaluation_limit, realistic_set
 from neuralcol.stages.realistic import evaluate_realistic
 
@@ -36,7 +36,7 @@ def realistic_config(cfg, overrides: list[str]):
 
 def repair_config(cfg, overrides: list[str]):
     """The run's ``handler.repair`` settings (off for runs older than it) with overrides, as
-    :class:`~neuralcol.handler.contact_repair.RepairSettings` (None when disabled)."""
+    :class:`~neuralcol.repair.settings.RepairSettings` (None when disabled)."""
     return repair_from_config(cfg, overrides=overrides)
 
 

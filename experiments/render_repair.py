@@ -18,8 +18,8 @@ import numpy as np
 from experiments.evaluate_realistic import realistic_config, run_realistic_set
 from neuralcol.api import load_run
 from neuralcol.data.realistic import clear_mask
-from neuralcol.handler.contact_repair import outward_sign, repair_contacts
 from neuralcol.metrics.plots import depth_colors, render_mesh_png
+from neuralcol.repair.contact import outward_sign, repair_contacts
 
 
 def main(argv: list[str] | None = None) -> None:

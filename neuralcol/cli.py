@@ -62,7 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
     res.add_argument("--sequence", action="store_true", help="the inputs are the frames of one motion in the order "
                                                              "given: corrected smoothly in time")
     res.add_argument("--json", action="store_true", help="one JSON object per mesh: file, out, collides_before, "
-                                                         "collides_after, pd_before, pd_after, max_move, seconds")
+                                                         "collides_after, pd_before, pd_after, max_move, "
+                                                         "move_to_depth, seconds")
     res.add_argument("--rest", metavar="FILE", help="as for check (sets the repairs' scale)")
     res.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     trn = sub.add_parser("train", help="train a run (python -m experiments.run OVERRIDES...)", add_help=False)
@@ -229,16 +230,20 @@ def resolve_main(args, out: TextIO, err: TextIO) -> int:
             except Exception as exc:
                 inputs.fail(i, f"cannot write {target}: {' '.join(str(exc).split())}")
                 continue
-            move = float(np.linalg.norm(result[k] - vertices[k], axis=1).max() / diag)
+            largest = float(np.linalg.norm(result[k] - vertices[k], axis=1).max())
+            move = largest / diag
+            ratio = largest / float(pd_b[k]) if pd_b[k] > 0 else None  # the largest move over the input's depth
             still |= bool(after[k])
             row = {"file": inputs.entries[i].name, "out": str(target), "collides_before": bool(before[k]),
                    "collides_after": bool(after[k]), "pd_before": float(pd_b[k]), "pd_after": float(pd_a[k]),
-                   "max_move": move, "seconds": float(seconds[k])}
+                   "max_move": move, "move_to_depth": ratio, "seconds": float(seconds[k])}
             if args.json:
                 print(json.dumps(row), file=out)
             else:
                 state = "untouched (free)" if untouched[k] else ("STILL COLLIDES" if after[k] else "freed")
-                print(f"{row['file']} -> {target}  {state}  max move {100 * move:.3g} % of the diagonal", file=out)
+                depth = "" if ratio is None else f" ({ratio:.2g}x the input's depth)"
+                print(f"{row['file']} -> {target}  {state}  max move {100 * move:.3g} % of the diagonal{depth}",
+                      file=out)
     if not inputs.ok:
         return EXIT_BAD_INPUT
     return EXIT_COLLIDES if still else EXIT_FREE

@@ -61,6 +61,8 @@ def test_resolve_without_a_run_frees_a_colliding_mesh_and_keeps_a_free_one(make,
     assert r.pd_input[1] > 0 and r.pd_after[1] <= 0 and r.repaired[1]
     assert not neuralcol.check(r.vertices[1].numpy(), f).collides[0]  # the exact verdict on what comes back
     assert 0 < r.displacement_max[1] / r.diagonal < 0.5  # moved, not blown up (how little: research/, docs/)
+    assert np.isnan(r.move_to_depth[0])  # a free input has no depth
+    assert r.move_to_depth[1] == pytest.approx(r.displacement_max[1] / r.pd_input[1])
 
 
 def test_resolve_sequence_without_a_run_frees_every_frame():
@@ -128,7 +130,13 @@ def test_resolve_command_writes_each_result_in_its_format(folder, tmp_path):
     assert code == EXIT_FREE, err
     rows = {Path(r["file"]).name: r for r in map(json.loads, out.splitlines())}
     assert set(rows["10.obj"]) == {"file", "out", "collides_before", "collides_after", "pd_before", "pd_after",
-                                   "max_move", "seconds"}
+                                   "max_move", "move_to_depth", "seconds"}
+    assert rows["2.obj"]["move_to_depth"] is None  # a free input has no depth
+    ratio = rows["10.obj"]["move_to_depth"]
+    v_in, _ = read_mesh(folder / "10.obj")
+    v_out, _ = read_mesh(out_dir / "10.obj")
+    largest = float(np.linalg.norm(v_out - v_in, axis=1).max())
+    assert ratio == pytest.approx(largest / rows["10.obj"]["pd_before"], rel=1e-9)
     assert (out_dir / "2.obj").read_bytes() == (folder / "2.obj").read_bytes()  # free: written unchanged
     assert rows["2.obj"]["max_move"] == 0 and not rows["2.obj"]["collides_before"]
     for name in ("10.obj", "sheet.ply"):
@@ -162,8 +170,8 @@ def test_the_runless_repair_defaults_are_the_configs():
     conf/handler/default.yaml, the one source of the hyperparameters."""
     from omegaconf import OmegaConf
 
-    from neuralcol.handler.contact_repair import RepairSettings
-    from neuralcol.handler.untangle import UntangleSettings
+    from neuralcol.repair.settings import RepairSettings
+    from neuralcol.repair.untangle import UntangleSettings
 
     handler = OmegaConf.load(Path(__file__).resolve().parents[1] / "conf/handler/default.yaml")
     conf = OmegaConf.to_container(handler.repair, resolve=True)

@@ -221,7 +221,9 @@ def test_resolve_repair_first(trained, monkeypatch):
     """handler.repair.first: colliding inputs are repaired directly, and that mesh is kept wherever it is free."""
     from omegaconf import OmegaConf
 
-    from neuralcol.handler.contact_repair import RepairSettings, outward_sign, repair_meshes
+    from neuralcol.repair.contact import outward_sign
+    from neuralcol.repair.meshes import repair_meshes
+    from neuralcol.repair.settings import RepairSettings
 
     z = _codes(trained, 200, 7)
     verts = trained.decode(z)

@@ -8,15 +8,9 @@ import pytest
 import trimesh
 
 from neuralcol.collision.labeler import ExactLabeler
-from neuralcol.handler.contact_repair import (
-    RepairSettings,
-    contact_push,
-    diffusion_operator,
-    outward_sign,
-    repair_contacts,
-    repair_meshes,
-    repair_settings,
-)
+from neuralcol.repair.contact import contact_push, diffusion_operator, outward_sign, repair_contacts
+from neuralcol.repair.meshes import repair_meshes
+from neuralcol.repair.settings import RepairSettings, repair_settings
 
 
 def two_spheres(overlap: float, subdivisions: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -189,7 +183,7 @@ def test_shrink_corrections_on_two_spheres():
 
 def test_cap_displacements_clips_the_largest_moves_to_the_smallest_free_cap():
     """Analytic: moves 1, 2, 4 along x; the label frees the mesh when vertex 0 moved >= 0.8, i.e. cap c >= 0.2."""
-    from neuralcol.handler.resolve import cap_displacements
+    from neuralcol.repair.cap import cap_displacements
 
     x = np.zeros((2, 3, 3))
     result = np.zeros((2, 3, 3))
@@ -261,3 +255,26 @@ def test_retry_runs_only_where_the_repairs_fail_and_is_kept_only_where_it_frees(
     assert ok3[0] and np.array_equal(out3[0], run(None, untangle=None)[0][0])
     with pytest.raises(ValueError, match="retry"):
         RepairSettings(retry={"ancor": 0.01})
+
+
+def test_repair_package_numpy_in_numpy_out():
+    """neuralcol.repair.repair on a batch of a free and a colliding pair of spheres: the free one comes back bit for
+    bit, the colliding one free (also for a second labeler built on another mesh, so at another scale); the moves
+    and their ratio to the input's depth are the returned vertices' own."""
+    from neuralcol.repair import Repaired, repair
+
+    hit, faces, rest = two_spheres(0.08, subdivisions=2)
+    free = rest.copy()
+    batch = np.stack([free, hit])
+    lab = ExactLabeler(faces, rest)
+    out = repair(batch, faces, lab, rest=rest)
+    assert isinstance(out, Repaired) and isinstance(out.vertices, np.ndarray) and out.vertices.dtype == np.float64
+    np.testing.assert_array_equal(out.vertices[0], free)
+    assert out.untouched.tolist() == [True, False] and out.repaired.tolist() == [False, True]
+    assert out.freed.tolist() == [True, True] and out.pd_input[1] > 0
+    assert not ExactLabeler(faces, hit).verdict(out.vertices[1])  # another labeler (other scale) agrees
+    moves = np.linalg.norm(out.vertices - batch, axis=2)
+    np.testing.assert_allclose(out.largest_move, moves.max(1))
+    np.testing.assert_allclose(out.median_move, np.median(moves, 1))
+    assert np.isnan(out.move_to_depth[0])
+    assert out.move_to_depth[1] == pytest.approx(moves[1].max() / out.pd_input[1])

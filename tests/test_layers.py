@@ -15,6 +15,7 @@ LAYERS = [
     {"utils"},
     {"geometry"},
     {"collision", "metrics"},
+    {"repair"},
     {"nn"},
     {"data"},
     {"samples"},

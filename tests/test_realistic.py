@@ -9,7 +9,8 @@ import torch
 
 from neuralcol.data.realistic import KINDS, balanced_selection, clear_mask, make_realistic_meshes, out_of_box
 from neuralcol.geometry.acap import ACAP
-from neuralcol.handler.resolve import displacement_stats, transfer_displacement
+from neuralcol.handler.resolve import transfer_displacement
+from neuralcol.repair.cap import displacement_stats
 from tests.conftest import make_tube, twist
 
 

@@ -39,13 +39,13 @@ def _boom(*args, **kwargs):
 
 
 def test_a_free_mesh_comes_back_bit_identical(shipped, meshes, monkeypatch):
-    import neuralcol.handler.contact_repair as contact_repair
     import neuralcol.handler.resolve as handler
+    import neuralcol.repair.meshes as repair_meshes
 
     mesh = meshes[0][0]
     monkeypatch.setattr(shipped.space, "encode", _boom)
     monkeypatch.setattr(handler, "handle_codes", _boom)
-    monkeypatch.setattr(contact_repair, "repair_meshes", _boom)
+    monkeypatch.setattr(repair_meshes, "repair_meshes", _boom)
     out = shipped.resolve(mesh)
     assert out.vertices.dtype == torch.float64
     np.testing.assert_array_equal(out.vertices[0].cpu().numpy(), mesh)

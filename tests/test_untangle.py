@@ -1,4 +1,4 @@
-"""neuralcol.handler.untangle: the labeler's penetration vectors, the intersection-contour gradient
+"""neuralcol.repair.untangle: the labeler's penetration vectors, the intersection-contour gradient
 against finite differences, and untangling analytic cases and SCAPE meshes to collision-free."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 from fault_labelers import two_spheres
 
 from neuralcol.collision.labeler import ExactLabeler
-from neuralcol.handler.untangle import SmoothField, UntangleSettings, contour_gradient, untangle
+from neuralcol.repair.untangle import SmoothField, UntangleSettings, contour_gradient, untangle
 
 
 def _spheres(offset: float, subdivisions: int = 2):
@@ -179,7 +179,7 @@ def test_edge_faces_of_a_small_mesh():
 def test_untangle_goes_on_only_while_the_pairs_still_fall():
     """Past max_iter, still_falling: on while the fewest pairs of the last window is below progress x the fewest
     before it, never past max_iter + extra_iter; extra_iter 0 stops at max_iter."""
-    from neuralcol.handler.untangle import still_falling
+    from neuralcol.repair.untangle import still_falling
 
     s = UntangleSettings(max_iter=4, extra_iter=6, window=2, progress=0.9)
     assert still_falling([100, 90, 80, 70, 60], s)  # last two (70, 60) below 0.9 x 80
@@ -245,7 +245,9 @@ def test_collision_kinds_of_analytic_cases():
 def test_contact_untangle_is_the_push_where_it_frees_and_untangle_elsewhere():
     """handler.repair.method=contact_untangle: the contact push's mesh where it frees the input; where it does not
     (no iterations allowed here), untangle's from the input, bit for bit."""
-    from neuralcol.handler.contact_repair import RepairSettings, outward_sign, repair_meshes
+    from neuralcol.repair.contact import outward_sign
+    from neuralcol.repair.meshes import repair_meshes
+    from neuralcol.repair.settings import RepairSettings
 
     rest, faces = _spheres(3.0)
     lab = ExactLabeler(faces, rest)

@@ -2,7 +2,7 @@
 ``neuralcol.resolve`` and ``neuralcol.resolve_sequence``.
 
 Without a run these need only the faces: the exact labeler (:mod:`neuralcol.collision.labeler`) gives the verdict,
-and the exact repairs (:mod:`neuralcol.handler.contact_repair`: the contact push, the untangle where the push fails,
+and the exact repairs (:mod:`neuralcol.repair.contact`: the contact push, the untangle where the push fails,
 a wider untangle where both fail, then the displacement cap) move a colliding mesh until the exact labeler calls
 it free, as little as they can. With a run trained on the mesh's topology, ``resolve`` is
 :meth:`~neuralcol.api.TrainedRun.resolve` (the learned handler, then the same repairs). A free input comes back
@@ -106,7 +106,7 @@ def resolve(vertices, faces, run=None, rest=None, repair=None, progress: bool = 
             :class:`~neuralcol.api.TrainedRun` of this topology (its learned handler, then the same repairs).
         rest: (V, 3) the mesh that sets the scale of the repairs (their separation and largest step are fractions
             of its bounding-box diagonal); None: the first mesh. Without a run only.
-        repair: :class:`~neuralcol.handler.contact_repair.RepairSettings` (None: the defaults, which are
+        repair: :class:`~neuralcol.repair.settings.RepairSettings` (None: the defaults, which are
             ``handler.repair`` of ``conf/handler/default.yaml``). Without a run only.
         progress: a progress bar over the colliding meshes.
 
@@ -126,33 +126,20 @@ def resolve(vertices, faces, run=None, rest=None, repair=None, progress: bool = 
 def repair_batch(lab, base: np.ndarray, v: np.ndarray, f: np.ndarray, repair, progress: bool):
     """:func:`resolve` without a run of meshes (B, V, 3) with faces (F, 3), given the exact labeler ``lab`` of their
     topology built on ``base`` (V, 3) (so a caller resolving many batches builds it once); ``repair`` a
-    RepairSettings or None (the defaults)."""
+    RepairSettings or None (the defaults). The repairs are :func:`neuralcol.repair.repair`'s; this wraps its numpy
+    result as a :class:`~neuralcol.api.Resolved`."""
     from neuralcol.api.results import Resolved
-    from neuralcol.handler.contact_repair import RepairSettings, outward_sign, repair_meshes
-    from neuralcol.handler.resolve import cap_freed, displacement_stats
+    from neuralcol.repair import repair as exact_repair
 
-    settings = RepairSettings() if repair is None else repair
-    pd_in = lab.label_batch(v).pd
-    out, pd_out = v.copy(), pd_in.copy()
-    rows = np.flatnonzero(pd_in > 0)
-    repaired, cap = np.zeros(len(v), bool), np.full(len(v), np.nan)  # (cap: NaN where not tried)
-    if len(rows):
-        fixed, _, _ = repair_meshes(v[rows], f, lab, settings, float(lab.eps), float(lab.diag), outward_sign(f, base),
-                                    progress=progress)
-        pd_fix = lab.label_batch(fixed).pd
-        better = pd_fix < pd_in[rows]  # (a repair that makes things worse is not kept)
-        keep = rows[better]
-        out[keep], pd_out[keep], repaired[keep] = fixed[better], pd_fix[better], True
-        cap = cap_freed(v, out, pd_in, pd_out, lambda m: lab.label_batch(m).pd, settings.cap_steps, lab)
-    moved = displacement_stats(v, out, float(lab.diag))
+    r = exact_repair(v, f, lab, repair, rest=base, progress=progress)
     n = len(v)
     nan = np.full(n, np.nan)
-    return Resolved(vertices=torch.as_tensor(out), codes=torch.zeros(n, 0), codes_before=torch.zeros(n, 0),
-                    pd_input=pd_in, pd_before=nan, pd_after=pd_out, margin=nan.copy(),
-                    displacement_mean=moved["mean"], displacement_max=moved["max"],
-                    displacement_median=moved["median"], diagonal=float(lab.diag),
-                    decoded=torch.full(v.shape, float("nan"), dtype=torch.float32), repaired=repaired, cap=cap,
-                    untouched=pd_in <= 0)
+    return Resolved(vertices=torch.as_tensor(r.vertices), codes=torch.zeros(n, 0), codes_before=torch.zeros(n, 0),
+                    pd_input=r.pd_input, pd_before=nan, pd_after=r.pd_after, margin=nan.copy(),
+                    displacement_mean=r.mean_move, displacement_max=r.largest_move,
+                    displacement_median=r.median_move, diagonal=r.diagonal,
+                    decoded=torch.full(v.shape, float("nan"), dtype=torch.float32), repaired=r.repaired, cap=r.cap,
+                    untouched=r.untouched)
 
 
 def resolve_sequence(frames, faces, run=None, rate: float = 1.0, rest=None, repair=None, progress: bool = False):

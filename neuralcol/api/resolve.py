@@ -17,7 +17,7 @@ class ResolveMixin:
 
     def repair_settings(self, repair: bool | None = None):
         """The run's ``handler.repair`` (off for runs older than it) with ``repair`` forcing it on or off."""
-        from neuralcol.handler.contact_repair import repair_from_config
+        from neuralcol.repair.settings import repair_from_config
 
         try:
             return repair_from_config(self.cfg, enabled=repair)
@@ -124,10 +124,10 @@ class ResolveMixin:
             alm_settings,
             certified_outcome,
             detector_logits,
-            displacement_stats,
             handle_codes,
             verified_escalation,
         )
+        from neuralcol.repair.cap import displacement_stats
 
         if objective not in OBJECTIVES:
             raise UserInputError(f"objective={objective!r}; use one of {OBJECTIVES}")
@@ -202,7 +202,8 @@ class ResolveMixin:
                         verify: bool, repair: bool | None, band) -> Resolved:
         """:meth:`resolve` of meshes (B, V, 3) float64: :func:`~neuralcol.handler.resolve.resolve_meshes`, the free
         inputs returned untouched (exact PD first; no encoder, handler or repair for them)."""
-        from neuralcol.handler.resolve import UNTOUCHED, displacement_stats, resolve_meshes
+        from neuralcol.handler.resolve import UNTOUCHED, resolve_meshes
+        from neuralcol.repair.cap import displacement_stats
 
         pd_in = self._pd(v_user)
         all_free = len(pd_in) > 0 and bool((pd_in <= 0).all())

@@ -375,7 +375,7 @@ class ExactLabeler(MeshByMesh):
     def penetrations(self, vertices, max_region: float = 1.0, seed_vectors: bool = True) -> Penetrations:
         """The penetrating vertices of a mesh (V, 3) and how far each must move (module docstring: "Penetrating
         vertices", "Depth"): :class:`Penetrations`. What the untangle repair moves
-        (:mod:`neuralcol.handler.untangle`). ``max_region``: a flood-filled region holding more than this share
+        (:mod:`neuralcol.repair.untangle`). ``max_region``: a flood-filled region holding more than this share
         of the vertices is taken for the outside of an intersection curve that does not close, and keeps its seeds
         only (1.0: as the labeler's depth). ``seed_vectors`` False: vectors of the enclosed regions only (zeros at
         the seeds of local folds and of meshes with boundary). The passes run with a clearance limit of 0: the

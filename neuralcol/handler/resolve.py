@@ -19,6 +19,7 @@ import torch
 from neuralcol.handler.alm import ALMSettings, Resolution, alm_resolve
 from neuralcol.handler.objectives import LatentObjective
 from neuralcol.nn.inference import batched_logits
+from neuralcol.repair.cap import cap_freed
 from neuralcol.utils.config import as_dict
 
 ANCHORS = ("median", "none")
@@ -187,17 +188,6 @@ def transfer_displacement(v_user: torch.Tensor, decoded_before: torch.Tensor, de
     return v_user + d
 
 
-def displacement_stats(v_user: np.ndarray, v_out: np.ndarray, diagonal: float) -> dict[str, np.ndarray]:
-    """Per-mesh vertex displacement from the input, in mesh units and as a fraction of ``diagonal``.
-
-    Returns ``{"median", "mean", "max"}`` each (B,) in mesh units (NaN where the output is non-finite) and the
-    same divided by ``diagonal`` under ``"<key>_frac"``."""
-    d = np.linalg.norm(np.asarray(v_out, np.float64) - np.asarray(v_user, np.float64), axis=-1)  # (B, V)
-    out = {"median": np.median(d, axis=1), "mean": d.mean(1), "max": d.max(1)}
-    out.update({f"{k}_frac": v / float(diagonal) for k, v in list(out.items())})
-    return out
-
-
 class MeshResolution(NamedTuple):
     """:func:`resolve_meshes` for N input meshes.
 
@@ -273,54 +263,6 @@ def shrink_corrections(x: np.ndarray, result: np.ndarray,
             np.where(keep, hi, 1.0))
 
 
-def cap_displacements(x: np.ndarray, result: np.ndarray, label: Callable[[np.ndarray], np.ndarray],
-                      steps: int, collides: Callable[[np.ndarray], np.ndarray] | None = None,
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The smallest cap on each result's vertex displacements that leaves it collision-free.
-
-    With ``d = result - x`` and ``m`` its largest vertex displacement, the capped mesh is
-    ``x + d_i min(1, c m / |d_i|)`` (each vertex's move keeps its direction, its length clipped at ``c m``: a
-    continuous field); bisection over ``steps`` steps finds the smallest ``c`` in (0, 1] at which the mesh is free.
-
-    Args:
-        label: meshes (m, V, 3) -> exact PD (m,) (NaN where the labeler failed).
-        collides: meshes (m, V, 3) -> (m,) bool, the exact verdict (e.g. ``ExactLabeler.verdict``, far cheaper
-            than the full label). With it the bisection asks the verdict and only the capped meshes kept get
-            ``label`` (a capped mesh whose label is not free is dropped: its result kept); without it each step is
-            one batched ``label``.
-
-    Returns:
-        (meshes (n, V, 3), pd (n,): the capped mesh's exact PD, NaN where the result was kept, c (n,): 1.0 where kept).
-    """
-    x, result = np.asarray(x, np.float64), np.asarray(result, np.float64)
-    d = result - x
-    norm = np.linalg.norm(d, axis=-1, keepdims=True)  # (n, V, 1)
-    top = norm.max(1, keepdims=True)  # (n, 1, 1)
-
-    def capped(c: np.ndarray) -> np.ndarray:
-        return x + d * np.minimum(1.0, c[:, None, None] * top / np.maximum(norm, 1e-300))
-
-    lo, hi = np.zeros(len(x)), np.ones(len(x))
-    best_pd = np.full(len(x), np.nan)
-    for _ in range(steps if len(x) else 0):
-        c = 0.5 * (lo + hi)
-        if collides is None:
-            pd = label(capped(c))
-            free = np.nan_to_num(pd, nan=np.inf) <= 0
-            best_pd[free] = pd[free]
-        else:
-            free = ~np.asarray(collides(capped(c)), bool)
-        hi[free] = c[free]
-        lo[~free] = c[~free]
-    kept = hi < 1
-    if collides is not None and kept.any():  # the full label of what is kept
-        rows = np.flatnonzero(kept)
-        best_pd[rows] = label(capped(hi)[rows])
-        bad = rows[~(np.nan_to_num(best_pd[rows], nan=np.inf) <= 0)]
-        hi[bad], best_pd[bad], kept[bad] = 1.0, np.nan, False
-    return np.where(kept[:, None, None], capped(hi), result), best_pd, hi
-
-
 def edge_strain(v_in: np.ndarray, v_out: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(B,) per mesh, the largest change of an edge's length in mean edge lengths of the input,
     ``max_e |len_out - len_in| / mean_e len_in`` (a ratio per edge is dominated by the shortest edges: the
@@ -364,7 +306,7 @@ def resolve_meshes(net: torch.nn.Module | None, space, v_user: torch.Tensor,
         anchor: see :func:`transfer_displacement`.
         z_user: (N, D) the inputs' codes if already known (default: encoded here).
         pd_input: (N,) the inputs' exact PD if already known (default: labeled here).
-        repair: :class:`~neuralcol.handler.contact_repair.RepairSettings` or None: the returned meshes the exact
+        repair: :class:`~neuralcol.repair.settings.RepairSettings` or None: the returned meshes the exact
             labeler still finds self-penetrating after the margins get the contact repair (our addition), which
             is kept where it lowers the exact PD; with ``repair.first`` the colliding inputs are also repaired
             directly and that mesh is kept wherever it comes out free (``pd_after_detector`` and
@@ -482,21 +424,6 @@ def resolve_meshes(net: torch.nn.Module | None, space, v_user: torch.Tensor,
                           decide.exact_share, shrink, cap)
 
 
-def cap_freed(x: np.ndarray, out: np.ndarray, pd_in: np.ndarray, pd_v: np.ndarray, label, steps: int,
-              labeler) -> np.ndarray:
-    """``repair.cap_steps``: the colliding inputs returned free by the exact label get :func:`cap_displacements`
-    (bisection on ``labeler.verdict``; ``out`` and ``pd_v`` updated in place); returns the cap per input (NaN where
-    not tried)."""
-    cap = np.full(len(out), np.nan)
-    rows = np.flatnonzero(~(pd_in <= 0) & (pd_v <= 0) & np.isfinite(pd_v))
-    if steps and len(rows):
-        kept, pd_c, cap[rows] = cap_displacements(x[rows], out[rows], label, steps,
-                                                  lambda m: np.array([labeler.verdict(v) for v in m], bool))
-        moved = cap[rows] < 1
-        out[rows], pd_v[rows[moved]] = kept, pd_c[moved]
-    return cap
-
-
 def _repaired_inputs(space, v_user: torch.Tensor, pd_in: np.ndarray, label, repair, labeler, progress: bool):
     """Repair first: the colliding inputs' rows, their repaired meshes, exact PDs, and which came out free."""
     first = np.flatnonzero(~(pd_in <= 0))
@@ -508,7 +435,8 @@ def _repaired_inputs(space, v_user: torch.Tensor, pd_in: np.ndarray, label, repa
 
 def _repaired(space, meshes: np.ndarray, label, repair, labeler, progress: bool) -> tuple[np.ndarray, np.ndarray]:
     """The repair (``repair.method``) of meshes (n, V, 3) and their exact PD."""
-    from neuralcol.handler.contact_repair import outward_sign, repair_meshes
+    from neuralcol.repair.contact import outward_sign
+    from neuralcol.repair.meshes import repair_meshes
 
     rest = space.rest_vertices.detach().cpu().numpy()
     faces = space.faces.detach().cpu().numpy()

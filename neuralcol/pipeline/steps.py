@@ -24,12 +24,12 @@ from neuralcol.data.datasets import MeshDataset
 from neuralcol.data.features import DatasetFeatures
 from neuralcol.geometry.mesh_io import write_meshes
 from neuralcol.handler.alm import ALMSettings
-from neuralcol.handler.contact_repair import repair_from_config
 from neuralcol.handler.resolve import alm_settings
 from neuralcol.metrics.cascade import Band
 from neuralcol.metrics.plots import partition_colors, render_mesh_png
 from neuralcol.nn.part_geometry import DetectorOnCodes, detector_inputs
 from neuralcol.pipeline.context import LatentStage, RunContext
+from neuralcol.repair.settings import repair_from_config
 from neuralcol.rundir import RunDir
 from neuralcol.samples.cache import shared_test_set
 from neuralcol.samples.oracle import LatentOracle

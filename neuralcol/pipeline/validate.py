@@ -146,7 +146,7 @@ def config_problems(cfg: DictConfig) -> list[str]:
         except (TypeError, ValueError) as e:
             problems.append(f"handler.alm: {e}")
     if _get(cfg, "handler.repair") is not None:
-        from neuralcol.handler.contact_repair import repair_settings
+        from neuralcol.repair.settings import repair_settings
 
         try:
             repair_settings(OmegaConf.to_container(cfg.handler.repair, resolve=True))

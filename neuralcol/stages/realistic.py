@@ -21,9 +21,10 @@ import torch
 
 from neuralcol.data.realistic import KINDS, RealisticMeshes, clear_mask, out_of_box
 from neuralcol.handler.alm import ALMSettings
-from neuralcol.handler.resolve import detector_logits, displacement_stats, edge_strain, resolve_meshes
+from neuralcol.handler.resolve import detector_logits, edge_strain, resolve_meshes
 from neuralcol.metrics.detection import detection_metrics, fnr_interval
 from neuralcol.nn.part_geometry import code_mesh_logits
+from neuralcol.repair.cap import displacement_stats
 from neuralcol.samples.realistic import evaluation_limit, pool_pd
 from neuralcol.utils.config import as_dict
 
@@ -90,7 +91,7 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
         eps: the labeler's boundary width (``clear_eps`` is in these units).
         cfg: the ``realistic`` config (``clear_eps``, ``handler_inputs``, ``anchor``).
         settings, margins, batch_size: the handler's settings, verification margins and batch.
-        repair: :class:`~neuralcol.handler.contact_repair.RepairSettings` or None: the contact repair as the
+        repair: :class:`~neuralcol.repair.settings.RepairSettings` or None: the contact repair as the
             handler's last verified stage (the pool's labeler runs it, in this process); with
             ``repair_reference`` in ``cfg`` the repair alone on the inputs is measured beside it
             (``handling.repair_only``).
@@ -200,7 +201,8 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
                        "handled_pd_after": res.pd_after, "handled_displacement_median_frac": moved["median_frac"],
                        "handled_displacement_max_frac": moved["max_frac"], "handled_repaired": res.repaired})
         if repair is not None and c.get("repair_reference", False):
-            from neuralcol.handler.contact_repair import outward_sign, repair_meshes
+            from neuralcol.repair.contact import outward_sign
+            from neuralcol.repair.meshes import repair_meshes
 
             t_r = time.perf_counter()
             rest = space.rest_vertices.cpu().numpy()

@@ -493,7 +493,7 @@ def repair_of(overrides: list[str]):
         return None
     from omegaconf import OmegaConf
 
-    from neuralcol.handler.contact_repair import repair_from_config
+    from neuralcol.repair.settings import repair_from_config
 
     handler = OmegaConf.load(ROOT / "conf" / "handler" / "default.yaml")
     return repair_from_config(OmegaConf.create({"handler": handler}), overrides=overrides)

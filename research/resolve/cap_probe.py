@@ -2,7 +2,7 @@
 colliding realistic meshes A..B; each freed mesh whose largest vertex displacement exceeds ``--above`` (fraction of the
 diagonal) is pulled back towards its input with exact labels only, by bisection (6 steps) on either
 ``scale``: x + s d (the whole displacement scaled), or ``cap``: x + d_i min(1, c m / |d_i|) (each move clipped at c
-times the largest m; :func:`neuralcol.handler.resolve.cap_displacements`). Prints the p95 of the per-mesh largest
+times the largest m; :func:`neuralcol.repair.cap.cap_displacements`). Prints the p95 of the per-mesh largest
 displacement over the freed meshes, before and after, and per mesh the half penetration depth for comparison.
 
     PYTHONPATH=. python research/resolve/cap_probe.py RUN_DIR [A:]B [--mode scale|cap] [--above 0.02]
@@ -15,8 +15,11 @@ import argparse
 import numpy as np
 
 import neuralcol
-from neuralcol.handler.contact_repair import outward_sign, repair_from_config, repair_meshes
-from neuralcol.handler.resolve import cap_displacements, shrink_corrections
+from neuralcol.handler.resolve import shrink_corrections
+from neuralcol.repair.cap import cap_displacements
+from neuralcol.repair.contact import outward_sign
+from neuralcol.repair.meshes import repair_meshes
+from neuralcol.repair.settings import repair_from_config
 from research.resolve.untangle_probe import colliding_rows
 
 

@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 import neuralcol
-from neuralcol.handler.untangle import SmoothField, UntangleSettings, untangle
+from neuralcol.repair.untangle import SmoothField, UntangleSettings, untangle
 from research.resolve.untangle_probe import realistic_set
 
 VARIANTS = {

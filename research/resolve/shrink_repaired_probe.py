@@ -16,8 +16,10 @@ import time
 import numpy as np
 
 import neuralcol
-from neuralcol.handler.contact_repair import outward_sign, repair_from_config, repair_meshes
 from neuralcol.handler.resolve import shrink_corrections
+from neuralcol.repair.contact import outward_sign
+from neuralcol.repair.meshes import repair_meshes
+from neuralcol.repair.settings import repair_from_config
 from research.resolve.untangle_probe import colliding_rows
 
 

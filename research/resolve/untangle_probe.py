@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 import neuralcol
-from neuralcol.handler.contact_repair import diffusion_operator, repair_contacts
-from neuralcol.handler.untangle import SmoothField, UntangleSettings, untangle
+from neuralcol.repair.contact import diffusion_operator, repair_contacts
+from neuralcol.repair.untangle import SmoothField, UntangleSettings, untangle
 
 
 def realistic_set(run) -> dict:

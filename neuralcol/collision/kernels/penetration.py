@@ -1,7 +1,7 @@
 """Penetrating vertices of a self-intersecting mesh, from the crossing records of the label passes: which edges
 separate inside from outside (the seeds), the penetrating regions (a flood fill bounded by those edges), each
 region's opposing triangles, and per vertex the depth (the labeler's PD) or the vector to the nearest opposing
-point (what a repair must move it by; :mod:`neuralcol.handler.untangle`). Definitions: the module docstring of
+point (what a repair must move it by; :mod:`neuralcol.repair.untangle`). Definitions: the module docstring of
 :mod:`neuralcol.collision.labeler` ("Penetrating vertices", "Depth")."""
 
 from __future__ import annotations

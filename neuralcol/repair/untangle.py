@@ -2,7 +2,7 @@
 
 **Region push**: move every penetrating region of a mesh out of the volume it entered, as one smooth field.
 
-The contact repair (:mod:`neuralcol.handler.contact_repair`) pushes the two triangles of each intersecting pair
+The contact repair (:mod:`neuralcol.repair.contact`) pushes the two triangles of each intersecting pair
 apart; a deep penetration (an arm in the torso, a thigh in a calf) has its intersecting triangles along the
 intersection curve only, and pushing them crumples the surface into new contacts. The exact labeler knows more:
 on a closed mesh the flood fill bounded by the intersection curves gives every vertex inside another part's
