@@ -133,6 +133,14 @@ def _cli(args: list[str], timeout: float) -> tuple[int | None, str, str, float]:
         return None, "", "", time.perf_counter() - t
 
 
+def _reason(err: str, path: Path) -> str:
+    """The command's one-line reason for ``path`` (its line naming the file; warnings of libraries left out)."""
+    lines = [line.strip() for line in err.splitlines() if line.strip()]
+    named = [line for line in lines if line.startswith(str(path))]
+    line = (named or lines or ["(no message)"])[-1]
+    return line.removeprefix(f"{path}: ")[:300]
+
+
 def _face_count(path: Path) -> int | None:
     try:
         import trimesh
@@ -160,7 +168,7 @@ def run(args) -> None:
             row["check"] = f"timed out after {args.timeout:g} s"
         elif code == 2 or not out.strip():
             row["check"] = "refused"
-            row["reason"] = " ".join(err.split())[:300]
+            row["reason"] = _reason(err, path)
         else:
             c = json.loads(out.splitlines()[0])
             row.update({"check": "read", "collides": c["collides"], "pairs": c["pairs"], "pd": c["pd"]})
@@ -174,7 +182,7 @@ def run(args) -> None:
                 row["resolve"] = f"timed out after {args.timeout:g} s"
             elif not out.strip():
                 row["resolve"] = "failed"
-                row["reason"] = " ".join(err.split())[:300]
+                row["reason"] = _reason(err, path)
             else:
                 r = json.loads(out.splitlines()[0])
                 result = Path(r["out"])
