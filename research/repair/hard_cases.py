@@ -28,6 +28,8 @@ Methods (each from the input mesh unless said):
   stays, along the direction whose rays leave the still surface soonest
   (:func:`research.repair.escape.directed_escape`), then the repairs; ``directed3``: that pair of steps up to three
   times, each from the last one's output;
+* ``shipped`` (SCAPE only): the shipped SCAPE model's ``resolve`` (``neuralcol.pretrained("scape")``: the repairs
+  first, the learned handler and the repairs again where they fail), to compare with the path without a run;
 * ``<method>_cap``: that method, then its freed mesh's moves from the *input* capped
   (:func:`neuralcol.repair.cap.cap_displacements`, the cap ``neuralcol.resolve`` applies, 6 bisection steps on the
   exact verdict): the repairs that follow an escape cap their own moves only, from the escaped mesh.
@@ -44,7 +46,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 BASE_METHODS = ("repairs", "restart", "share1", "stiff10", "escape", "escape_fast", "directed", "directed3")
-METHODS = (*BASE_METHODS, *(f"{m}_cap" for m in BASE_METHODS[4:]))
+METHODS = (*BASE_METHODS, *(f"{m}_cap" for m in BASE_METHODS[4:]), "shipped")
 
 
 def draw_path(cache: Path, dataset: str, seed: int) -> Path:
@@ -91,6 +93,11 @@ def method_of(name: str, faces: np.ndarray, lab, rest: np.ndarray, earlier: dict
 
     if name == "repairs":
         return repairs
+    if name == "shipped":
+        import neuralcol
+
+        run = neuralcol.pretrained("scape")
+        return lambda k, x: run.resolve(x[None]).vertices[0].detach().cpu().numpy()
     if name == "restart":
         if earlier is None:
             raise SystemExit("--method restart needs the repairs' output: run --method repairs first (--keep)")
