@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 import trimesh
 
 import neuralcol
@@ -178,3 +179,38 @@ def test_the_runless_repair_defaults_are_the_configs():
     untangle = conf.pop("untangle")
     assert RepairSettings(**conf) == RepairSettings()
     assert UntangleSettings(**untangle) == UntangleSettings()
+
+
+def test_least_move_keeps_whichever_path_frees_with_the_smaller_move():
+    """Per colliding input: the path without the run replaces the run's where it frees the mesh and the run's does
+    not, or both free it and it moves less; otherwise (it fails, or it moves more) the run's stays; free inputs are
+    the run's."""
+    from neuralcol.api.anymesh import least_move
+    from neuralcol.api.results import Resolved
+
+    n, v = 5, 4
+    base = torch.zeros(n, v, 3, dtype=torch.float64)
+
+    def made(marks, pd_after, moves, rows, margin=0.0):
+        m = len(rows)
+        verts = base[rows].clone() + torch.as_tensor(marks, dtype=torch.float64)[:, None, None]
+        nan = np.full(m, np.nan)
+        return Resolved(vertices=verts, codes=torch.zeros(m, 2), codes_before=torch.zeros(m, 2),
+                        pd_input=np.where(np.isin(rows, [0]), -1.0, 1.0), pd_before=nan, pd_after=np.array(pd_after),
+                        margin=np.full(m, margin), displacement_mean=np.array(moves), displacement_max=np.array(moves),
+                        displacement_median=np.array(moves), diagonal=1.0, decoded=torch.zeros(m, v, 3),
+                        repaired=np.full(m, np.isnan(margin)), cap=np.ones(m), untouched=np.isin(rows, [0]))
+
+    # input 0 free; 1: both free, the run's moves less; 2: both free, the repairs' move less; 3: only the repairs
+    # free it; 4: only the run frees it
+    with_run = made([0, 1, 1, 1, 1], [-1, -1, -1, 0.5, -1], [0, 0.1, 0.3, 0.2, 0.2], np.arange(n))
+    rows = np.array([1, 2, 3, 4])
+    alone = made([2, 2, 2, 2], [-1, -1, -1, 0.4], [0.2, 0.1, 0.4, 0.05], rows, margin=np.nan)  # as repair_batch
+    out = least_move(with_run, alone, rows)
+    assert out.without_run.tolist() == [False, False, True, True, False]
+    assert out.vertices[:, 0, 0].tolist() == [0, 1, 2, 2, 1]
+    np.testing.assert_array_equal(out.displacement_max, [0, 0.1, 0.1, 0.4, 0.2])
+    np.testing.assert_array_equal(out.pd_after, [-1, -1, -1, -1, -1])
+    assert out.repaired.tolist() == [False, False, True, True, False]
+    assert np.isnan(out.margin).tolist() == [False, False, True, True, False]
+    assert with_run.without_run is None and with_run.vertices[2, 0, 0] == 1  # the inputs are not changed

@@ -103,7 +103,10 @@ def resolve(vertices, faces, run=None, rest=None, repair=None, progress: bool = 
         vertices: (B, V, 3) meshes or one (V, 3), numpy or torch.
         faces: (F, 3) triangles.
         run: None (the exact repairs alone: contact push, untangles, displacement cap) or a
-            :class:`~neuralcol.api.TrainedRun` of this topology (its learned handler, then the same repairs).
+            :class:`~neuralcol.api.TrainedRun` of this topology (its learned handler, then the same repairs); with a
+            run the colliding inputs also take the path without it (the repairs alone, at the scale of the run's
+            rest mesh) and each gets whichever result frees it with the smaller largest move
+            (:func:`least_move`; ``without_run`` of the result says which).
         rest: (V, 3) the mesh that sets the scale of the repairs (their separation and largest step are fractions
             of its bounding-box diagonal); None: the first mesh. Without a run only.
         repair: :class:`~neuralcol.repair.settings.RepairSettings` (None: the defaults, which are
@@ -118,9 +121,46 @@ def resolve(vertices, faces, run=None, rest=None, repair=None, progress: bool = 
     v, f = as_meshes(vertices, faces)
     if run is not None:
         _check_run_topology(run, f, v.shape[1])
-        return run.resolve(v)
+        with_run = run.resolve(v)
+        hit = ~(np.asarray(with_run.pd_input) <= 0)
+        if not hit.any():
+            return with_run
+        base = np.asarray(run.space.rest_vertices.detach().cpu(), np.float64)
+        rows = np.flatnonzero(hit)
+        alone = repair_batch(labeler_for(f, base), base, v[rows], f, repair, progress)
+        return least_move(with_run, alone, rows)
     base = v[0] if rest is None else as_meshes(rest, f, "rest")[0][0]
     return repair_batch(labeler_for(f, base), base, v, f, repair, progress)
+
+
+def least_move(with_run, alone, rows: np.ndarray):
+    """Of two paths' results, per colliding input the one that moves least among those that free it: ``with_run``
+    (a :class:`~neuralcol.api.Resolved` of every input, the run's path) and ``alone`` (the path without the run, the
+    exact repairs, on the inputs ``rows``). The path without the run replaces the run's where it frees the mesh and
+    the run's does not, or both free it and its largest vertex move is smaller; ``without_run`` says where. Free
+    inputs are the run's (untouched either way)."""
+    def freed(pd):
+        return np.nan_to_num(np.asarray(pd, np.float64), nan=np.inf) <= 0
+
+    ok_run, ok_alone = freed(with_run.pd_after)[rows], freed(alone.pd_after)
+    smaller = np.asarray(alone.displacement_max) < np.asarray(with_run.displacement_max)[rows]
+    take = ok_alone & (~ok_run | smaller)
+    pick = rows[take]
+    vertices = with_run.vertices.clone()
+    vertices[torch.as_tensor(pick)] = alone.vertices[torch.as_tensor(np.flatnonzero(take))].to(vertices)
+    out = {}
+    for key in ("pd_after", "displacement_mean", "displacement_max", "displacement_median", "repaired", "cap",
+                "margin"):
+        mine = getattr(with_run, key)
+        if mine is None:
+            continue
+        mine = np.array(mine, dtype=np.float64 if key != "repaired" else bool, copy=True)
+        theirs = getattr(alone, key)
+        mine[pick] = np.asarray(theirs)[take] if theirs is not None else np.nan
+        out[key] = mine
+    without = np.zeros(len(vertices), bool)
+    without[pick] = True
+    return with_run._replace(vertices=vertices, without_run=without, **out)
 
 
 def repair_batch(lab, base: np.ndarray, v: np.ndarray, f: np.ndarray, repair, progress: bool):

@@ -80,6 +80,9 @@ class Resolved(NamedTuple):
     untouched (N,) bool or None (code inputs): the input mesh was free by the exact label and came back as given,
     bit for bit (``pd_after`` = ``pd_input``, displacements 0, ``margin`` NaN; it skipped the encoder, handler and
     repair, so its ``codes``, ``codes_before``, ``decoded`` and ``pd_before`` are NaN).
+    without_run (N,) bool or None: ``neuralcol.resolve`` with a run only: the returned mesh is the path without the
+    run's (the exact repairs alone), kept because it freed the mesh and moved it less than the run's path, or freed
+    it where the run's path did not (``codes`` and ``decoded`` then still describe the run's attempt).
     """
 
     vertices: torch.Tensor
@@ -101,6 +104,7 @@ class Resolved(NamedTuple):
     shrink: np.ndarray | None = None
     cap: np.ndarray | None = None
     untouched: np.ndarray | None = None
+    without_run: np.ndarray | None = None
 
     @property
     def move_to_depth(self) -> np.ndarray:

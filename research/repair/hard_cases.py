@@ -30,6 +30,8 @@ Methods (each from the input mesh unless said):
   times, each from the last one's output;
 * ``shipped`` (SCAPE only): the shipped SCAPE model's ``resolve`` (``neuralcol.pretrained("scape")``: the repairs
   first, the learned handler and the repairs again where they fail), to compare with the path without a run;
+  ``shipped_least``: ``neuralcol.resolve(mesh, faces, run=shipped)``, which also takes the path without the run and
+  keeps the result that frees the mesh with the smaller largest move;
 * ``<method>_cap``: that method, then its freed mesh's moves from the *input* capped
   (:func:`neuralcol.repair.cap.cap_displacements`, the cap ``neuralcol.resolve`` applies, 6 bisection steps on the
   exact verdict): the repairs that follow an escape cap their own moves only, from the escaped mesh.
@@ -46,7 +48,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 BASE_METHODS = ("repairs", "restart", "share1", "stiff10", "escape", "escape_fast", "directed", "directed3")
-METHODS = (*BASE_METHODS, *(f"{m}_cap" for m in BASE_METHODS[4:]), "shipped")
+METHODS = (*BASE_METHODS, *(f"{m}_cap" for m in BASE_METHODS[4:]), "shipped", "shipped_least")
 
 
 def draw_path(cache: Path, dataset: str, seed: int) -> Path:
@@ -93,10 +95,12 @@ def method_of(name: str, faces: np.ndarray, lab, rest: np.ndarray, earlier: dict
 
     if name == "repairs":
         return repairs
-    if name == "shipped":
+    if name in ("shipped", "shipped_least"):
         import neuralcol
 
         run = neuralcol.pretrained("scape")
+        if name == "shipped_least":
+            return lambda k, x: neuralcol.resolve(x, faces, run=run).vertices[0].detach().cpu().numpy()
         return lambda k, x: run.resolve(x[None]).vertices[0].detach().cpu().numpy()
     if name == "restart":
         if earlier is None:
