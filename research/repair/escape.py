@@ -73,14 +73,9 @@ def escape(vertices: np.ndarray, labeler, field: RegionField, n_dirs: int = 64, 
     direction at every length, shortest length first; with ``keep_dirs`` the directions are first ranked at the
     region's own depth and only the ``keep_dirs`` best are tried at every length (``n_dirs + keep_dirs * len(scales)``
     checks per region instead of ``n_dirs * len(scales)``)."""
-    v = np.array(vertices, np.float64)
     dirs = sphere_directions(n_dirs)
-    seen = [int(len(labeler.intersecting_pairs(v)))]
-    for _ in range(max_steps):
-        pen = labeler.penetrations(v, 0.3, seed_vectors=False)
-        if pen.n_pairs == 0:
-            break
-        depth = np.linalg.norm(pen.vector, axis=1)
+
+    def best_move(v, pen, depth):
         best_count, best, best_len = pen.n_pairs, None, np.inf
         for region in sorted(field.regions(depth > 0), key=lambda r: -depth[r].max())[:max_regions]:
             phi = field.weight(region)[:, None]
@@ -97,13 +92,26 @@ def escape(vertices: np.ndarray, labeler, field: RegionField, n_dirs: int = 64, 
                     if count < best_count or (count == best_count and best is not None and length < best_len):
                         best_count, best, best_len = count, moved, length
                 if best_count == 0:
-                    break
-            if best_count == 0:
-                break
+                    return best_count, best
+        return best_count, best
+
+    return greedy_steps(vertices, labeler, max_steps, best_move, int(len(labeler.intersecting_pairs(vertices))))
+
+
+def greedy_steps(vertices: np.ndarray, labeler, max_steps: int, best_move, first: int) -> Escaped:
+    """Up to ``max_steps`` moves of a mesh (V, 3), each ``best_move(v, penetrations, depth) -> (pair count, moved mesh
+    or None)``, while a move lowers the pair count; ``first``: the input's pair count (the first of ``seen``)."""
+    v = np.array(vertices, np.float64)
+    seen = [first]
+    for _ in range(max_steps):
+        pen = labeler.penetrations(v, 0.3, seed_vectors=False)
+        if pen.n_pairs == 0:
+            break
+        count, best = best_move(v, pen, np.linalg.norm(pen.vector, axis=1))
         if best is None:
             break
         v = best
-        seen.append(best_count)
+        seen.append(count)
     return Escaped(v, seen)
 
 
@@ -170,16 +178,11 @@ def directed_escape(vertices: np.ndarray, faces: np.ndarray, labeler, field: Reg
     """Move penetrating regions of a mesh (V, 3) out along the directions that take them out soonest (module
     docstring). ``margin``: mean edge lengths beyond the farthest hit; ``static``: triangles whose vertices all weigh
     less than this do not move (the rays' targets)."""
-    v = np.array(vertices, np.float64)
     dirs = sphere_directions(n_dirs)
     ell = float(labeler.ell)
-    seen = [int(labeler.penetrations(v, 0.3, seed_vectors=False).n_pairs)]
-    for _ in range(max_steps):
-        pen = labeler.penetrations(v, 0.3, seed_vectors=False)
-        if pen.n_pairs == 0:
-            break
+
+    def best_move(v, pen, depth):
         pairs = np.asarray(labeler.intersecting_pairs(v)).reshape(-1, 2)
-        depth = np.linalg.norm(pen.vector, axis=1)
         candidates = []
         for region in sorted(field.regions(depth > 0), key=lambda r: -depth[r].max())[:max_regions]:
             phi, across = two_sided_weight(field, faces, region, pairs)
@@ -190,7 +193,7 @@ def directed_escape(vertices: np.ndarray, faces: np.ndarray, labeler, field: Reg
             need = np.where(np.isfinite(hits), hits, 0.0).max(1)  # (D,) takes every region vertex past its hit
             candidates += [(need[d] + margin * ell, d, phi) for d in np.argsort(need)[:tries] if need[d] > 0]
         candidates.sort(key=lambda c: c[0])
-        best_count, best = seen[-1], None
+        best_count, best = pen.n_pairs, None
         for length, d, phi in candidates[:3 * tries]:
             moved = v + length * phi[:, None] * dirs[d]
             count = int(labeler.penetrations(moved, 0.3, seed_vectors=False).n_pairs)
@@ -198,8 +201,7 @@ def directed_escape(vertices: np.ndarray, faces: np.ndarray, labeler, field: Reg
                 best_count, best = count, moved
             if count == 0:
                 break
-        if best is None:
-            break
-        v = best
-        seen.append(best_count)
-    return Escaped(v, seen)
+        return best_count, best
+
+    first = int(labeler.penetrations(vertices, 0.3, seed_vectors=False).n_pairs)
+    return greedy_steps(vertices, labeler, max_steps, best_move, first)
