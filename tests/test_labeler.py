@@ -332,3 +332,30 @@ def test_limited_label_is_the_full_label_with_clearances_capped(scape_np, floor)
     lab.prune = True
     with pytest.raises(ValueError, match="clearance_limit"):
         lab.label_limited(meshes[0], 0.0)
+
+
+def test_label_without_clearance_is_the_full_label_where_it_collides(scape_np):
+    """ExactLabeler(clearance=False): verdict, counted pairs, vertex depths and every positive PD_i equal the full
+    label's bit for bit, every other PD_i is -cap, and no near table is ever built (verdict, pairs, penetrations,
+    label); a mesh labelled against itself gets the full label's free PD to the last bit or so."""
+    meshes, lab = _limited_cases(scape_np)
+    lean = ExactLabeler(lab.faces, lab.rest, partition=lab.partition, clearance=False)
+    n_colliding = 0
+    for v in meshes:
+        full, got = lab.label(v), lean.label(v)
+        assert (got.collides, got.n_pairs) == (full.collides, full.n_pairs)
+        hit = full.pd_sub > 0
+        n_colliding += bool(hit.any())
+        np.testing.assert_array_equal(got.pd_sub[hit], full.pd_sub[hit])
+        np.testing.assert_array_equal(got.pd_sub[~hit], -lean.cap)
+        np.testing.assert_array_equal(lean.vertex_depths(v), lab.vertex_depths(v))
+        assert lean.verdict(v) == full.collides
+        np.testing.assert_array_equal(lean.intersecting_pairs(v), lab.intersecting_pairs(v))
+        a, b = lean.penetrations(v), lab.penetrations(v)  # the grid's records and the near table's: the same
+        assert a.n_pairs == b.n_pairs
+        for x, y in ((a.depth, b.depth), (a.vector, b.vector), (a.crossing_pairs, b.crossing_pairs)):
+            np.testing.assert_array_equal(x, y)
+    assert 0 < n_colliding < len(meshes)
+    assert lean._near is None, "the labeler without clearance never builds the rest mesh's near table"
+    at_rest = ExactLabeler(lab.faces, lab.rest)
+    assert lean.label(lab.rest).pd == pytest.approx(at_rest.label(lab.rest).pd, rel=1e-14, abs=0)

@@ -58,13 +58,16 @@ def as_meshes(vertices, faces, name: str = "vertices") -> tuple[np.ndarray, np.n
     return v, f
 
 
-def labeler_for(faces: np.ndarray, rest: np.ndarray, settings: dict | None = None):
+def labeler_for(faces: np.ndarray, rest: np.ndarray, settings: dict | None = None, clearance: bool = True):
     """The exact labeler of a topology, built on ``rest`` (V, 3): the mesh that sets the clearance scale (its
     bounding-box diagonal) and the near-pair table of the free PD (the verdict does not depend on it).
-    ``settings``: the labeler's keyword arguments (``touch_tol``, ``clearance_cap``, ``boundary_eps``, ...)."""
+    ``settings``: the labeler's keyword arguments (``touch_tol``, ``clearance_cap``, ``boundary_eps``, ...).
+    ``clearance`` False: a free mesh's PD is not measured but reported as ``-cap``; the verdict, the pairs and a
+    colliding mesh's PD are the full label's, and set-up and label stay linear in the faces
+    (:class:`~neuralcol.collision.labeler.ExactLabeler`'s ``clearance``)."""
     from neuralcol.collision.labeler import ExactLabeler
 
-    return ExactLabeler(faces, rest, **(settings or {}))
+    return ExactLabeler(faces, rest, **{**(settings or {}), "clearance": clearance})
 
 
 def check(vertices, faces, rest=None) -> Checked:
@@ -79,9 +82,17 @@ def check(vertices, faces, rest=None) -> Checked:
         :class:`Checked`.
     """
     v, f = as_meshes(vertices, faces)
-    lab = labeler_for(f, v[0] if rest is None else as_meshes(rest, f, "rest")[0][0])
-    labels = lab.label_batch(v)
-    return Checked(labels.collides, labels.n_pairs, labels.pd)
+    base = v[0] if rest is None else as_meshes(rest, f, "rest")[0][0]
+    # A mesh at its rest has every clearance term at its rest value, the cap: its full label is the one without
+    # clearances (to the last bit of the free PD, -cap), which never builds the near table. So checking a mesh
+    # against itself (one file, no --rest) stays linear in the faces; other meshes get the full label.
+    same = np.array([np.array_equal(x, base) for x in v], bool)
+    collides, pairs, pd = np.zeros(len(v), bool), np.zeros(len(v), np.int64), np.zeros(len(v))
+    for mask, clearance in ((same, False), (~same, True)):
+        if mask.any():
+            labels = labeler_for(f, base, clearance=clearance).label_batch(v[mask])
+            collides[mask], pairs[mask], pd[mask] = labels.collides, labels.n_pairs, labels.pd
+    return Checked(collides, pairs, pd)
 
 
 def _check_run_topology(run, faces: np.ndarray, n_vertices: int) -> None:
@@ -127,10 +138,10 @@ def resolve(vertices, faces, run=None, rest=None, repair=None, progress: bool = 
             return with_run
         base = np.asarray(run.space.rest_vertices.detach().cpu(), np.float64)
         rows = np.flatnonzero(hit)
-        alone = repair_batch(labeler_for(f, base), base, v[rows], f, repair, progress)
+        alone = repair_batch(labeler_for(f, base, clearance=False), base, v[rows], f, repair, progress)
         return least_move(with_run, alone, rows)
     base = v[0] if rest is None else as_meshes(rest, f, "rest")[0][0]
-    return repair_batch(labeler_for(f, base), base, v, f, repair, progress)
+    return repair_batch(labeler_for(f, base, clearance=False), base, v, f, repair, progress)
 
 
 def least_move(with_run, alone, rows: np.ndarray):
@@ -211,7 +222,7 @@ def resolve_sequence(frames, faces, run=None, rate: float = 1.0, rest=None, repa
         _check_run_topology(run, f, v.shape[1])
         return run.resolve_sequence(v, rate=rate, progress=progress)
     base = v[0] if rest is None else as_meshes(rest, f, "rest")[0][0]
-    lab = labeler_for(f, base)
+    lab = labeler_for(f, base, clearance=False)
     top = float(frame_jumps(v).max())
     step = rate * (top if top > 0 else 1e-3 * lab.diag)  # a still input: 0.1 % of the diagonal
 

@@ -60,7 +60,10 @@ class Resolved(NamedTuple):
     codes (N, D) float32: the handled latent codes. codes_before (N, D): the inputs' codes. pd_input (N,)
     float64: exact PD of the input meshes (NaN for code inputs). pd_before (N,): exact PD of the decoded input
     codes (the autoencoder's round trip). pd_after (N,): exact PD of the returned ``vertices`` (NaN: the
-    handler or the labeler failed). margin (N,): the detector-logit margin of the kept result (NaN where the
+    handler or the labeler failed). Without a run (and for the path without the run) a free mesh's clearance is
+    not measured: its PD is ``-cap``, the clearance cap of the rest mesh (``labeler_for(..., clearance=False)``), so
+    large meshes never pay for the near table; a colliding mesh's PD is exact either way.
+    margin (N,): the detector-logit margin of the kept result (NaN where the
     contact repair's mesh was kept, or the input came back ``untouched``). repaired (N,) bool: the contact repair
     (``handler.repair``, mesh inputs with ``verify``) produced the returned mesh.
     displacement_mean, displacement_max, displacement_median (N,): how far the returned vertices lie from the

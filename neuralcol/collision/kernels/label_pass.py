@@ -8,8 +8,20 @@ import numpy as np
 from numba import njit
 
 from neuralcol.collision.kernels.broadphase import shared_vertex_count, sorted_cells
-from neuralcol.collision.kernels.pair_terms import add_crossings, lower_clearance, near_index, pair_counted, pair_terms
+from neuralcol.collision.kernels.pair_terms import (
+    add_crossings,
+    contact_depth,
+    count_pair,
+    is_counted,
+    lower_clearance,
+    near_index,
+    pair_counted,
+    pair_terms,
+    penetration_of,
+)
 from neuralcol.collision.kernels.penetration import crossing_seeds, penetration
+from neuralcol.collision.kernels.predicates import NO_CONTACT, triangles_intersect
+from neuralcol.collision.kernels.vec import corners
 
 
 @njit(cache=True)
@@ -45,6 +57,36 @@ def verdict_kernel(verts, faces, lo, hi, cell, scale, tau):
                 if pair_counted(verts, faces, a0, b0, scale, tau):
                     return True
     return False
+
+
+@njit(cache=True)
+def counted_pass(verts, faces, pairs, scale, tau, part, floor, adj_ptr, adj_idx, adj_eid, orient):
+    """The counted pairs among ``pairs`` (the non-adjacent pairs whose boxes overlap) and their crossing records,
+    without any clearance term: what a label needs of a colliding mesh (``ExactLabeler(clearance=False)``). Raises
+    ``floor`` (per part) in place.
+
+    Returns:
+        n_pairs, rec_key, rec_int, n_rec.
+    """
+    rec_key = np.empty(64)
+    rec_int = np.empty((64, 5), dtype=np.int64)
+    n_rec = 0
+    n_pairs = 0
+    for k in range(pairs.shape[0]):
+        a = pairs[k, 0]
+        b = pairs[k, 1]
+        p0, p1, p2 = corners(verts, faces, a)
+        q0, q1, q2 = corners(verts, faces, b)
+        hit = triangles_intersect(p0, p1, p2, q0, q1, q2)
+        if hit == NO_CONTACT:
+            continue
+        depth = contact_depth(hit, p0, p1, p2, q0, q1, q2, scale)
+        if not is_counted(hit, depth, tau):
+            continue
+        n_pairs += 1
+        rec_key, rec_int, n_rec = count_pair(verts, faces, a, b, penetration_of(depth, tau), part, floor, adj_ptr,
+                                             adj_idx, adj_eid, orient, rec_key, rec_int, n_rec)
+    return n_pairs, rec_key, rec_int, n_rec
 
 
 @njit(cache=True)
