@@ -213,7 +213,7 @@ def resolve_colliding(meshes: np.ndarray, faces: np.ndarray, rest: np.ndarray, n
     from bench.timing import scalar
     from neuralcol.api.anymesh import labeler_for, repair_batch
 
-    lab = labeler_for(faces, rest)
+    lab = labeler_for(faces, rest, clearance=False)
     runless, trained, free_runless, free_trained = [], [], [], []
     with neuralcol.pretrained("scape", workers=0) as run:
         for k, v in enumerate(meshes):

@@ -156,7 +156,7 @@ def _resolve_each(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarray, run
     from neuralcol.api.anymesh import labeler_for, repair_batch, resolve
     from neuralcol.utils.progress import progress_bar
 
-    lab = None if run is not None else labeler_for(faces, rest)
+    lab = None if run is not None else labeler_for(faces, rest, clearance=False)
     n = len(vertices)
     result = np.empty_like(vertices)
     pd_b, pd_a, seconds = np.empty(n), np.empty(n), np.empty(n)

@@ -268,3 +268,28 @@ def test_contact_untangle_is_the_push_where_it_frees_and_untangle_elsewhere():
     np.testing.assert_array_equal(forced, untangled)
     with pytest.raises(ValueError, match="contact_untangle"):
         RepairSettings(method="push")
+
+
+def test_field_solved_near_its_targets_is_the_whole_mesh_field():
+    """On a large mesh with local targets, SmoothField solves the neighbourhood within reach alone: the vertices
+    beyond it stay exactly put and the rest match the whole mesh's field to 1e-5 of the targets' moves."""
+    import scipy.sparse as sp
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=6)  # 40 962 vertices, ~200 edge rings pole to pole
+    faces, n = np.asarray(s.faces), len(s.vertices)
+    field = SmoothField(faces, n, stiffness=1.0, anchor=0.05)
+    index = np.array([0, *np.flatnonzero((faces == 0).any(1))[:2]])  # a vertex and two of its neighbours' faces
+    index = np.unique(faces[index].ravel())[:3]
+    targets = np.array([[0.01, 0.0, 0.0], [0.0, 0.02, 0.0], [0.0, 0.0, -0.01]])
+    reach = field.within_reach(index)
+    assert 0 < reach.sum() < field.LOCAL_SHARE * n, "the targets' reach is a neighbourhood, not the mesh"
+    local = field.solve(index, targets, hold=10.0)
+    w = np.zeros(n)
+    w[index] = 10.0
+    rhs = np.zeros((n, 3))
+    rhs[index] = 10.0 * targets
+    whole = sp.linalg.spsolve((field.base + sp.diags(w)).tocsc(), rhs)
+    assert (local[~reach] == 0).all()
+    np.testing.assert_allclose(local, whole, rtol=0, atol=1e-5 * np.abs(targets).max())
+    assert np.abs(whole[~reach]).max() > 0, "the whole mesh's field does reach that far, if faintly"

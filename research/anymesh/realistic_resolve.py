@@ -135,7 +135,7 @@ def resolve_meshes_timed(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarr
     from neuralcol.api.anymesh import labeler_for, repair_batch
 
     t0 = time.perf_counter()
-    lab = labeler_for(faces, rest)
+    lab = labeler_for(faces, rest, clearance=False)
     t_lab = time.perf_counter() - t0
     n = len(vertices)
     out = np.empty_like(vertices)
