@@ -33,6 +33,7 @@ from bench import (
     neural,
     pipeline,
     pool,
+    repair,
     training,
     training_labels,
 )
@@ -40,7 +41,8 @@ from bench.context import HERE, BenchContext, scape_config
 from bench.markdown import write_markdown
 
 # name (--only, results.json "sections") -> module whose measure(ctx) returns {key: summary}; run in this order
-BENCHES = {"acap": acap, "labeler": labeler, "labeler_body": labeler_body, "pool": pool, "pipeline": pipeline,
+BENCHES = {"acap": acap, "labeler": labeler, "labeler_body": labeler_body, "repair": repair, "pool": pool,
+           "pipeline": pipeline,
            "dask": dask_pool, "fcl": fcl_backend, "neural": neural,
            "cascade": cascade, "training": training, "training_labels": training_labels, "memory": memory,
            "gpu": gpu, "export": export}

@@ -29,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from bench.repair import barrier_path
 from research.repair.hard_cases import draw_path, out_path
 
 LADDER = np.geomspace(0.5, 2000, 24)  # smoothing times tried, in order
@@ -44,51 +45,6 @@ def deflated(x: np.ndarray, faces: np.ndarray, labeler, ladder=LADDER):
         if not labeler.verdict(y):
             return y, float(t)
     return None, None
-
-
-def barrier_path(start: np.ndarray, target: np.ndarray, faces: np.ndarray, ell: float, dhat: float = 0.05,
-                 kappa: float = 0.1, stiffness: float = 0.0, max_iter: int = 300, tol: float = 1e-3):
-    """Newton with a CCD-cut line search from the free ``start`` towards ``target`` (module docstring); returns the
-    last iterate and the iterations used."""
-    import ipctk
-
-    from neuralcol.repair.untangle import edge_laplacian
-
-    fortran = np.asfortranarray
-    n = len(start)
-    mesh = ipctk.CollisionMesh(fortran(start), ipctk.edges(faces), faces)
-    q = sp.kron((sp.eye(n) + stiffness * edge_laplacian(faces, n)).tocsr(), sp.eye(3)).tocsc()
-    barrier = ipctk.BarrierPotential(dhat * ell, 1.0)
-    broad = ipctk.LBVH()
-    x, t = np.array(start, np.float64), target.reshape(-1)
-
-    def collisions(y):
-        c = ipctk.NormalCollisions()
-        c.build(mesh, fortran(y), dhat * ell, 0.0, broad)
-        return c
-
-    def energy(y, c):
-        d = y.reshape(-1) - t
-        return 0.5 * d @ (q @ d) + kappa * barrier(c, mesh, fortran(y))
-
-    its = 0
-    while its < max_iter:
-        its += 1
-        c = collisions(x)
-        g = q @ (x.reshape(-1) - t) + kappa * barrier.gradient(c, mesh, fortran(x))
-        h = q + kappa * barrier.hessian(c, mesh, fortran(x), ipctk.PSDProjectionMethod.CLAMP)
-        p = -spla.spsolve(h.tocsc(), g).reshape(-1, 3)
-        if np.abs(p).max() < tol * ell:
-            break
-        a = min(1.0, 0.9 * ipctk.compute_collision_free_stepsize(mesh, fortran(x), fortran(x + p), 0.0, broad))
-        e0 = energy(x, c)
-        for _ in range(20):
-            xn = x + a * p
-            if energy(xn, collisions(xn)) <= e0:
-                break
-            a *= 0.5
-        x = xn
-    return x, its
 
 
 def main(argv: list[str] | None = None) -> None:
