@@ -40,6 +40,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from neuralcol.errors import UserInputError
+from neuralcol.resources import conf_dir
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.config import as_dict
 
@@ -275,7 +276,7 @@ def run(cfg: DictConfig, out_dir: Path) -> dict:
     return results
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="diagnose")
+@hydra.main(version_base="1.3", config_path=str(conf_dir()), config_name="diagnose")
 @report_user_errors
 def main(cfg: DictConfig) -> None:
     logging.getLogger("lightning.pytorch.utilities.rank_zero").setLevel(logging.WARNING)

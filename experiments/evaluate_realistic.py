@@ -20,17 +20,16 @@ from omegaconf import OmegaConf
 from neuralcol.api import load_run
 from neuralcol.handler.resolve import alm_settings
 from neuralcol.repair.settings import repair_from_config
+from neuralcol.resources import conf_dir
 from neuralcol.samples.realistic import evaluation_limit, realistic_set
 from neuralcol.stages.realistic import evaluate_realistic
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def realistic_config(cfg, overrides: list[str]):
     """The run's ``realistic`` settings (or the default group's for older runs) with ``key=value`` overrides."""
     base = OmegaConf.select(cfg, "realistic")
     if base is None:
-        base = OmegaConf.create(yaml.safe_load((ROOT / "conf" / "realistic" / "default.yaml").read_text()))
+        base = OmegaConf.create(yaml.safe_load((conf_dir() / "realistic" / "default.yaml").read_text()))
     return OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides)))
 
 

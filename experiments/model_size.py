@@ -31,6 +31,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from neuralcol.errors import UserInputError
+from neuralcol.resources import conf_dir
 from neuralcol.stages.model_size import (
     LATENT_RULES,
     apply_size_rule,
@@ -42,7 +43,7 @@ from neuralcol.stages.model_size import (
 )
 from neuralcol.utils.cli import report_user_errors
 
-CONF = Path(__file__).resolve().parents[1] / "conf"
+CONF = conf_dir()
 RESERVED = ("auto", "fixed")  # conf/model_size's own presets: never overwritten
 
 

@@ -28,6 +28,7 @@ from experiments.reporting.summary import print_summary
 from neuralcol.errors import UserInputError
 from neuralcol.pipeline import run_pipeline
 from neuralcol.pipeline.validate import SEARCH_COMMAND
+from neuralcol.resources import conf_dir
 from neuralcol.utils import sitting
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.resume import RunDirLock, run_to_resume
@@ -48,7 +49,7 @@ def refuse_size_search(cfg: DictConfig, task_overrides) -> None:
                              "model_size=<that preset> (docs/model_size.md)")
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@hydra.main(version_base="1.3", config_path=str(conf_dir()), config_name="config")
 @report_user_errors
 def main(cfg: DictConfig) -> None:
     # keep the terminal readable: Lightning's hardware banner and tips, a third-party deprecation warning

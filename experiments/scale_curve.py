@@ -34,6 +34,7 @@ import torch
 from omegaconf import DictConfig
 
 from neuralcol.errors import UserInputError
+from neuralcol.resources import conf_dir
 from neuralcol.utils.cli import report_user_errors
 from neuralcol.utils.config import as_dict
 
@@ -252,7 +253,7 @@ def run(cfg: DictConfig) -> dict:
     return state
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="scale_curve")
+@hydra.main(version_base="1.3", config_path=str(conf_dir()), config_name="scale_curve")
 @report_user_errors
 def main(cfg: DictConfig) -> None:
     logging.getLogger("lightning.pytorch.utilities.rank_zero").setLevel(logging.WARNING)

@@ -1,7 +1,7 @@
 """neuralcol: active learning of neural collision handlers for deforming 3D meshes.
 
-Reproduces and extends Tan et al., "Active Learning of Neural Collision Handler for Complex 3D Mesh
-Deformations" (AAAI 2022). Top-level names are imported lazily, so that light modules (e.g. the exact
+Reproduces and extends Tan et al., "N-Penetrate: Active Learning of Neural Collision Handler for Complex 3D
+Mesh Deformations" (ICML 2022). Top-level names are imported lazily, so that light modules (e.g. the exact
 labeler in worker processes) do not pay for importing torch.
 """
 

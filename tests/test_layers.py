@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parents[1] / "neuralcol"
 
 # lowest first; a module may import its own package and the packages of lower layers
 LAYERS = [
-    {"errors", "rundir"},
+    {"errors", "rundir", "resources"},
     {"utils"},
     {"geometry"},
     {"collision", "metrics"},

@@ -52,7 +52,9 @@ def current_realistic(run_dir: Path, overrides: list[str]) -> dict:
     on top."""
     from hydra import compose, initialize_config_dir
 
-    conf = Path(__file__).resolve().parents[2] / "conf"
+    from neuralcol.resources import conf_dir
+
+    conf = conf_dir()
     rd = RunDir(run_dir)
     recorded = [str(o) for o in OmegaConf.load(rd.overrides)] if rd.overrides.is_file() else []
     keep = [o for o in recorded if not o.lstrip("+~").startswith(("realistic", "paths.", "hydra."))]

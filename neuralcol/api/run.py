@@ -74,8 +74,11 @@ def load_run(run_dir: str | Path, device: str | torch.device = "cpu", workers: i
 
 
 def pretrained_root() -> Path:
-    """The repository's ``pretrained/`` folder (beside the ``neuralcol`` package of a source checkout)."""
-    return Path(__file__).resolve().parents[2] / "pretrained"
+    """The shipped models' folder: ``pretrained/`` of a clone, or the copy an installed wheel carries
+    (:mod:`neuralcol.resources`)."""
+    from neuralcol.resources import pretrained_dir
+
+    return pretrained_dir()
 
 
 def pretrained(name: str = "scape", **load_kw):
@@ -91,8 +94,8 @@ def pretrained(name: str = "scape", **load_kw):
         have = sorted(p.name for p in root.glob("*") if RunDir(p).package.is_file()) if root.is_dir() else []
         raise UserInputError(f"{path}: no shipped model named {name!r} "
                              + (f"(shipped: {', '.join(have)})" if have else
-                                "(no pretrained/ folder here: it comes with a clone of the repository; or give "
-                                "load_run a packed folder)"))
+                                "(no pretrained/ folder here: this install carries none; reinstall neuralcol, or "
+                                "give load_run a packed folder)"))
     return load_run(path, **load_kw)
 
 

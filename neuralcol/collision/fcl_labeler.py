@@ -1,6 +1,6 @@
 """The paper's labeler: self-collision verdict, PD and PD_i from python-fcl (``labeling=fcl``).
 
-Tan et al. (AAAI 2022) label their meshes with FCL. :class:`FCLLabeler` does the same with python-fcl and
+Tan et al. (ICML 2022) label their meshes with FCL. :class:`FCLLabeler` does the same with python-fcl and
 exposes the interface of :class:`~neuralcol.collision.labeler.ExactLabeler` (``label``, ``verdict``,
 ``label_batch``, ``subsets``, ``n_vertices``, ``n_parts``, ``tau``, ``cap``, ``eps``, ...), so
 :class:`~neuralcol.collision.pool.LabelPool`, the oracle and the detector stage use it unchanged. Its PD is
