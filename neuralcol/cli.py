@@ -23,7 +23,14 @@ from typing import TextIO
 
 import numpy as np
 
-from neuralcol.geometry.mesh_files import MeshEntry, expand_paths, failure_reason, read_entry, topology_key
+from neuralcol.geometry.mesh_files import (
+    MeshEntry,
+    expand_paths,
+    failure_reason,
+    read_entry,
+    read_source_entry,
+    topology_key,
+)
 
 EXIT_FREE, EXIT_COLLIDES, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -49,13 +56,17 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="{check,resolve,train}")
     chk = sub.add_parser("check", help="the exact verdict of each mesh", epilog=EXAMPLES,
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    chk.add_argument("paths", nargs="+", metavar="PATH", help="mesh files (.obj, .ply, .off) or folders of them")
+    chk.add_argument("paths", nargs="+", metavar="PATH", help="mesh files (.obj, .off, .ply, .stl; triangles or "
+                                                                     "polygons) or folders of them")
     chk.add_argument("--json", action="store_true", help="one JSON object per mesh: file, collides, pairs, pd")
+    chk.add_argument("--pairs", action="store_true", help="also list the intersecting face pairs, as indices of "
+                                                          "the file's faces from 0 (JSON: pair_list)")
     chk.add_argument("--rest", metavar="FILE", help="rest mesh of its topology (sets the clearance scale; default: "
                                                     "each topology's first mesh)")
     res = sub.add_parser("resolve", help="write each mesh back free of self-intersections", epilog=EXAMPLES,
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    res.add_argument("paths", nargs="+", metavar="PATH", help="mesh files (.obj, .ply, .off) or folders of them")
+    res.add_argument("paths", nargs="+", metavar="PATH", help="mesh files (.obj, .off, .ply, .stl; triangles or "
+                                                                     "polygons) or folders of them")
     res.add_argument("--out", required=True, metavar="DIR", help="output folder: DIR/<input file name>, same format")
     res.add_argument("--run", metavar="RUN_DIR", help="a finished run of the meshes' topology: its learned handler, "
                                                        "then the exact repairs (default: the exact repairs alone)")
@@ -65,6 +76,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                          "collides_after, pd_before, pd_after, max_move, "
                                                          "move_to_depth, seconds")
     res.add_argument("--rest", metavar="FILE", help="as for check (sets the repairs' scale)")
+    res.add_argument("--overwrite", action="store_true", help="allow --out to be the inputs' own folder: a result "
+                                                              "then replaces its input file")
     res.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     trn = sub.add_parser("train", help="train a run (python -m experiments.run OVERRIDES...)", add_help=False)
     trn.add_argument("overrides", nargs=argparse.REMAINDER, help="Hydra overrides, e.g. dataset=meshes "
@@ -78,6 +91,7 @@ class Inputs:
     def __init__(self, paths: Sequence[str], err: TextIO, rest: str | None = None):
         self.entries = expand_paths(paths)
         self.meshes: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.sources: dict[int, object] = {}  # SourceMesh of each file read: written back through it
         self.groups: dict[tuple, list[int]] = {}
         self.ok = True
         self.err = err
@@ -86,10 +100,11 @@ class Inputs:
                 self.fail(i, entry.error)
                 continue
             try:
-                self.meshes[i] = read_entry(entry)
-            except Exception as exc:  # MeshFileError or anything trimesh raises
+                self.sources[i] = read_source_entry(entry)
+            except Exception as exc:  # MeshFileError or anything else a broken file raises
                 self.fail(i, f"cannot read: {failure_reason(entry.name, entry.path, exc)}")
                 continue
+            self.meshes[i] = (self.sources[i].vertices, self.sources[i].faces)
             self.groups.setdefault(topology_key(*self.meshes[i]), []).append(i)
         self.rest = None
         if rest is not None:
@@ -97,6 +112,13 @@ class Inputs:
                 self.rest = read_entry(MeshEntry(rest, Path(rest)))
             except Exception as exc:
                 self.fail(None, f"{rest}: cannot read the --rest mesh: {failure_reason(rest, Path(rest), exc)}")
+
+    def reading_note(self, i: int) -> str:
+        """What reading changed, said beside the verdict: an STL soup's merged corners."""
+        src = self.sources[i]
+        if getattr(src, "merged", 0):
+            return f"STL soup: {3 * src.n_file_faces} corners merged into {len(src.vertices)} vertices"
+        return ""
 
     def fail(self, i: int | None, message: str) -> None:
         print(message if i is None else f"{self.entries[i].name}: {message}", file=self.err)
@@ -116,6 +138,7 @@ def check_main(args, out: TextIO, err: TextIO) -> int:
 
     inputs = Inputs(args.paths, err, args.rest)
     rows: dict[int, tuple[bool, int, float]] = {}
+    listed: dict[int, list] = {}  # --pairs: the file's face pairs of each mesh
     for idx in inputs.groups.values():
         vertices, faces, rest = inputs.group_arrays(idx)
         try:
@@ -126,28 +149,42 @@ def check_main(args, out: TextIO, err: TextIO) -> int:
             continue
         for k, i in enumerate(idx):
             rows[i] = (bool(c.collides[k]), int(c.pairs[k]), float(c.pd[k]))
+        if args.pairs:
+            from neuralcol.api.anymesh import labeler_for
+
+            lab = labeler_for(faces, rest, clearance=False)
+            for k, i in enumerate(idx):
+                tri = lab.intersecting_pairs(vertices[k]) if rows[i][0] else np.zeros((0, 2), np.int64)
+                listed[i] = inputs.sources[i].file_pairs(tri).tolist()
     width = max((len(inputs.entries[i].name) for i in rows), default=0)
     for i in sorted(rows):
         name, (collides, pairs, pd) = inputs.entries[i].name, rows[i]
+        note = inputs.reading_note(i)
         if args.json:
-            print(json.dumps({"file": name, "collides": collides, "pairs": pairs, "pd": pd}), file=out)
+            row = {"file": name, "collides": collides, "pairs": pairs, "pd": pd}
+            if note:
+                row["note"] = note
+            if args.pairs:
+                row["pair_list"] = listed[i]
+            print(json.dumps(row), file=out)
         else:
-            print(f"{name:<{width}}  {'collides' if collides else 'free':<8}  pairs={pairs:<6d}  pd={pd:.6g}",
-                  file=out)
+            print(f"{name:<{width}}  {'collides' if collides else 'free':<8}  pairs={pairs:<6d}  pd={pd:.6g}"
+                  + (f"  ({note})" if note else ""), file=out)
+            if args.pairs and listed[i]:
+                print("  face pairs: " + " ".join(f"{a}-{b}" for a, b in listed[i]), file=out)
     if not inputs.ok:
         return EXIT_BAD_INPUT
     return EXIT_COLLIDES if any(r[0] for r in rows.values()) else EXIT_FREE
 
 
-def _write(path: Path, source: Path, vertices: np.ndarray, faces: np.ndarray, untouched: bool) -> None:
-    """The result as ``path`` in the input's format; an untouched input is copied byte for byte."""
-    from neuralcol.geometry.mesh_io import write_mesh
-
+def _write(path: Path, source, vertices: np.ndarray, untouched: bool, overwrite: bool) -> None:
+    """The result as ``path``: the input file (a :class:`~neuralcol.geometry.source_mesh.SourceMesh`) with its
+    vertex positions replaced, everything else as it was; an untouched input is copied byte for byte."""
     if untouched:
-        if source.resolve() != path.resolve():
-            shutil.copyfile(source, path)
+        if not (path.exists() and source.path.resolve() == path.resolve()):
+            shutil.copyfile(source.path, path)
         return
-    write_mesh(path, vertices, faces)
+    source.write(path, vertices, overwrite=overwrite)
 
 
 def _resolve_each(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarray, run, progress: bool):
@@ -186,6 +223,10 @@ def resolve_main(args, out: TextIO, err: TextIO) -> int:
         if names[i] in dup:
             inputs.fail(i, f"another input has the file name {names[i]}; outputs are DIR/<file name>: rename one")
             inputs.meshes.pop(i)
+        elif not args.overwrite and (outdir / names[i]).resolve() == inputs.entries[i].path.resolve():
+            inputs.fail(i, f"--out {args.out} would overwrite this input with its result: give another folder "
+                           "(or --overwrite to replace the inputs)")
+            inputs.meshes.pop(i)
     for key in list(inputs.groups):
         inputs.groups[key] = [i for i in inputs.groups[key] if i in inputs.meshes]
         if not inputs.groups[key]:
@@ -223,10 +264,20 @@ def resolve_main(args, out: TextIO, err: TextIO) -> int:
                 inputs.fail(i, f"cannot resolve: {' '.join(str(exc).split())}")
             continue
         diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
+        lab = None
         for k, i in enumerate(idx):
             target = outdir / names[i]
+            src = inputs.sources[i]
+            if not untouched[k]:
+                stored = src.stored(result[k])  # what the file holds once written (float32 in binary STL, most PLY)
+                if not np.array_equal(stored, result[k]):
+                    from neuralcol.api.anymesh import labeler_for
+
+                    lab = lab or labeler_for(faces, rest, clearance=False)
+                    label = lab.label(stored)  # the verdict on the file as written
+                    after[k], pd_a[k], result[k] = label.collides, label.pd, stored
             try:
-                _write(target, inputs.entries[i].path, result[k], faces, bool(untouched[k]))
+                _write(target, src, result[k], bool(untouched[k]), args.overwrite)
             except Exception as exc:
                 inputs.fail(i, f"cannot write {target}: {' '.join(str(exc).split())}")
                 continue
@@ -237,13 +288,14 @@ def resolve_main(args, out: TextIO, err: TextIO) -> int:
             row = {"file": inputs.entries[i].name, "out": str(target), "collides_before": bool(before[k]),
                    "collides_after": bool(after[k]), "pd_before": float(pd_b[k]), "pd_after": float(pd_a[k]),
                    "max_move": move, "move_to_depth": ratio, "seconds": float(seconds[k])}
+            note = inputs.reading_note(i)
             if args.json:
-                print(json.dumps(row), file=out)
+                print(json.dumps({**row, **({"note": note} if note else {})}), file=out)
             else:
                 state = "untouched (free)" if untouched[k] else ("STILL COLLIDES" if after[k] else "freed")
                 depth = "" if ratio is None else f" ({ratio:.2g}x the input's depth)"
-                print(f"{row['file']} -> {target}  {state}  max move {100 * move:.3g} % of the diagonal{depth}",
-                      file=out)
+                print(f"{row['file']} -> {target}  {state}  max move {100 * move:.3g} % of the diagonal{depth}"
+                      + (f"  ({note})" if note else ""), file=out)
     if not inputs.ok:
         return EXIT_BAD_INPUT
     return EXIT_COLLIDES if still else EXIT_FREE

@@ -10,7 +10,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from neuralcol.geometry.mesh_io import MESH_SUFFIXES, natural_key, read_mesh
+from neuralcol.geometry.mesh_io import natural_key
+from neuralcol.geometry.source_mesh import SOURCE_SUFFIXES, SourceMesh, read_source
 
 
 class MeshEntry(NamedTuple):
@@ -32,10 +33,10 @@ def expand_paths(paths: Sequence[str]) -> list[MeshEntry]:
     for arg in paths:
         path = Path(arg)
         if path.is_dir():
-            names = sorted((p.name for p in path.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES),
+            names = sorted((p.name for p in path.iterdir() if p.is_file() and p.suffix.lower() in SOURCE_SUFFIXES),
                            key=natural_key)
             if not names:
-                entries.append(MeshEntry(arg, path, f"folder holds no mesh files ({', '.join(MESH_SUFFIXES)})"))
+                entries.append(MeshEntry(arg, path, f"folder holds no mesh files ({', '.join(SOURCE_SUFFIXES)})"))
             entries += [MeshEntry(os.path.join(arg, n), path / n) for n in names]
         elif path.exists():
             entries.append(MeshEntry(arg, path))
@@ -54,12 +55,19 @@ def failure_reason(name: str, path: Path, exc: BaseException) -> str:
     return " ".join(msg.split()) or type(exc).__name__
 
 
-def read_entry(entry: MeshEntry) -> tuple[np.ndarray, np.ndarray]:
-    """Read one mesh and check that its vertices are finite: vertices (V, 3) float64, faces (F, 3) int64."""
-    vertices, faces = read_mesh(entry.path)
-    if not np.isfinite(vertices).all():
+def read_source_entry(entry: MeshEntry) -> SourceMesh:
+    """Read one mesh file with its structure (:func:`~neuralcol.geometry.source_mesh.read_source`: OBJ, OFF, PLY,
+    STL; polygons fan-triangulated, kept for writing back) and check that its vertices are finite."""
+    mesh = read_source(entry.path)
+    if not np.isfinite(mesh.vertices).all():
         raise ValueError("vertices contain NaN or inf; cannot label")
-    return vertices, faces
+    return mesh
+
+
+def read_entry(entry: MeshEntry) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`read_source_entry`'s vertices (V, 3) float64 and triangles (F, 3) int64."""
+    mesh = read_source_entry(entry)
+    return mesh.vertices, mesh.faces
 
 
 def topology_key(vertices: np.ndarray, faces: np.ndarray) -> tuple[int, tuple[int, ...], bytes]:
