@@ -29,6 +29,7 @@ from bench import (
     gpu,
     labeler,
     labeler_body,
+    large_meshes,
     memory,
     neural,
     pipeline,
@@ -41,7 +42,8 @@ from bench.context import HERE, BenchContext, scape_config
 from bench.markdown import write_markdown
 
 # name (--only, results.json "sections") -> module whose measure(ctx) returns {key: summary}; run in this order
-BENCHES = {"acap": acap, "labeler": labeler, "labeler_body": labeler_body, "repair": repair, "pool": pool,
+BENCHES = {"acap": acap, "labeler": labeler, "labeler_body": labeler_body, "large": large_meshes,
+           "repair": repair, "pool": pool,
            "pipeline": pipeline,
            "dask": dask_pool, "fcl": fcl_backend, "neural": neural,
            "cascade": cascade, "training": training, "training_labels": training_labels, "memory": memory,

@@ -37,7 +37,7 @@ import torch
 from neuralcol.api import TrainedRun
 from neuralcol.api import load_run as load_trained_run
 from neuralcol.errors import UserInputError
-from neuralcol.geometry.mesh_io import MESH_SUFFIXES, read_mesh, write_mesh
+from neuralcol.geometry.mesh_io import MESH_SUFFIXES, natural_key, read_mesh, write_mesh
 from neuralcol.nn.latent_space import LatentSpace
 from neuralcol.utils.cli import report_user_errors
 
@@ -92,11 +92,13 @@ def write_result(out_path: Path, vertices: np.ndarray, faces: np.ndarray, source
 
 
 def expand_folders(paths: list[Path]) -> list[Path]:
-    """Each folder in ``paths`` replaced by its mesh files in name order."""
+    """Each folder in ``paths`` replaced by its mesh files in natural name order (``2.obj`` before ``10.obj``), the
+    order of ``neuralcol resolve``."""
     out = []
     for p in paths:
         if p.is_dir():
-            files = sorted(q for q in p.iterdir() if q.suffix.lower() in MESH_SUFFIXES)
+            files = sorted((q for q in p.iterdir() if q.is_file() and q.suffix.lower() in MESH_SUFFIXES),
+                           key=lambda q: natural_key(q.name))
             if not files:
                 raise UserInputError(f"{p}: a folder with no mesh files ({', '.join(MESH_SUFFIXES)})")
             out += files

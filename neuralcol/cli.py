@@ -59,6 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
     chk.add_argument("paths", nargs="+", metavar="PATH", help="mesh files (.obj, .off, .ply, .stl; triangles or "
                                                                      "polygons) or folders of them")
     chk.add_argument("--json", action="store_true", help="one JSON object per mesh: file, collides, pairs, pd")
+    chk.add_argument("--verdict", action="store_true", help="the verdict alone, which stops at the first "
+                                                            "intersecting pair (pairs and pd not computed: null)")
     chk.add_argument("--pairs", action="store_true", help="also list the intersecting face pairs, as indices of "
                                                           "the file's faces from 0 (JSON: pair_list)")
     chk.add_argument("--rest", metavar="FILE", help="rest mesh of its topology (sets the clearance scale; default: "
@@ -142,13 +144,20 @@ def check_main(args, out: TextIO, err: TextIO) -> int:
     for idx in inputs.groups.values():
         vertices, faces, rest = inputs.group_arrays(idx)
         try:
-            c = check(vertices, faces, rest=rest)
+            if args.verdict:
+                from neuralcol.api.anymesh import labeler_for
+
+                lab = labeler_for(faces, rest, clearance=False)
+                for k, i in enumerate(idx):
+                    rows[i] = (bool(lab.verdict(vertices[k])), None, None)
+            else:
+                c = check(vertices, faces, rest=rest)
+                for k, i in enumerate(idx):
+                    rows[i] = (bool(c.collides[k]), int(c.pairs[k]), float(c.pd[k]))
         except Exception as exc:
             for i in idx:
                 inputs.fail(i, f"cannot check: {' '.join(str(exc).split())}")
             continue
-        for k, i in enumerate(idx):
-            rows[i] = (bool(c.collides[k]), int(c.pairs[k]), float(c.pd[k]))
         if args.pairs:
             from neuralcol.api.anymesh import labeler_for
 
@@ -168,7 +177,8 @@ def check_main(args, out: TextIO, err: TextIO) -> int:
                 row["pair_list"] = listed[i]
             print(json.dumps(row), file=out)
         else:
-            print(f"{name:<{width}}  {'collides' if collides else 'free':<8}  pairs={pairs:<6d}  pd={pd:.6g}"
+            figures = "" if pairs is None else f"  pairs={pairs:<6d}  pd={pd:.6g}"
+            print(f"{name:<{width}}  {'collides' if collides else 'free':<8}{figures}"
                   + (f"  ({note})" if note else ""), file=out)
             if args.pairs and listed[i]:
                 print("  face pairs: " + " ".join(f"{a}-{b}" for a, b in listed[i]), file=out)

@@ -170,3 +170,14 @@ def test_cli_pairs_in_file_faces_and_no_overwrite(tmp_path):
     np.testing.assert_array_equal(fixed.faces, read_source(src).faces)
     code, out, _ = _cli("check", str(tmp_path / "fixed" / "cubes.obj"))
     assert code == 0 and " free " in out
+
+
+def test_handle_orders_a_folder_like_the_cli(tmp_path):
+    """experiments.handle and neuralcol resolve read a folder's files in the same (natural) order."""
+    from experiments.handle import expand_folders
+    from neuralcol.geometry.mesh_files import expand_paths
+
+    for name in ("10.obj", "2.obj", "1.OBJ", "b.ply"):
+        (tmp_path / name).write_text("")
+    assert [p.name for p in expand_folders([tmp_path])] == [e.path.name for e in expand_paths([str(tmp_path)])] == [
+        "1.OBJ", "2.obj", "10.obj", "b.ply"]

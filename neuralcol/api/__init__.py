@@ -16,10 +16,25 @@ Symbols: B batch, V vertices, D = |Z_all| latent size, K sub-domains. PD is the 
 the units of the mesh (> 0: self-penetrating; docs/labels.md).
 """
 
-from neuralcol.api.files import TRUSTED_TARGETS, check_run_dir, untrusted_targets
-from neuralcol.api.package import check_package, pack_run
-from neuralcol.api.results import OBJECTIVES, Detection, Resolved
-from neuralcol.api.run import TrainedRun, load_run, pretrained
+from __future__ import annotations
 
-__all__ = ["OBJECTIVES", "TRUSTED_TARGETS", "Detection", "Resolved", "TrainedRun", "check_package", "check_run_dir",
-           "load_run", "pack_run", "pretrained", "untrusted_targets"]
+import importlib
+
+# imported on first use, so that `neuralcol check` (neuralcol.api.anymesh) does not pay for torch and the run's modules
+_EXPORTS = {
+    "TRUSTED_TARGETS": "neuralcol.api.files", "check_run_dir": "neuralcol.api.files",
+    "untrusted_targets": "neuralcol.api.files", "check_package": "neuralcol.api.package",
+    "pack_run": "neuralcol.api.package", "OBJECTIVES": "neuralcol.api.results", "Detection": "neuralcol.api.results",
+    "Resolved": "neuralcol.api.results", "TrainedRun": "neuralcol.api.run", "load_run": "neuralcol.api.run",
+    "pretrained": "neuralcol.api.run",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(_EXPORTS[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'neuralcol.api' has no attribute '{name}'")

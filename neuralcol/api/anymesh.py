@@ -21,7 +21,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-import torch
 
 from neuralcol.errors import UserInputError
 
@@ -157,6 +156,8 @@ def least_move(with_run, alone, rows: np.ndarray):
     smaller = np.asarray(alone.displacement_max) < np.asarray(with_run.displacement_max)[rows]
     take = ok_alone & (~ok_run | smaller)
     pick = rows[take]
+    import torch
+
     vertices = with_run.vertices.clone()
     vertices[torch.as_tensor(pick)] = alone.vertices[torch.as_tensor(np.flatnonzero(take))].to(vertices)
     out = {}
@@ -179,6 +180,8 @@ def repair_batch(lab, base: np.ndarray, v: np.ndarray, f: np.ndarray, repair, pr
     topology built on ``base`` (V, 3) (so a caller resolving many batches builds it once); ``repair`` a
     RepairSettings or None (the defaults). The repairs are :func:`neuralcol.repair.repair`'s; this wraps its numpy
     result as a :class:`~neuralcol.api.Resolved`."""
+    import torch
+
     from neuralcol.api.results import Resolved
     from neuralcol.repair import repair as exact_repair
 
