@@ -58,6 +58,7 @@ PD (measured: it jumps from 0 to a large value when a triangle enters another fr
 
 from __future__ import annotations
 
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -271,32 +272,13 @@ class ExactLabeler(MeshByMesh):
         self.rest = rest
         self.prune = bool(prune)
         self.n_vertices = len(rest)
-        topo = edge_topology(self.faces)
-        self.edges = topo.edges
-        self.ell = float(np.linalg.norm(rest[self.edges[:, 0]] - rest[self.edges[:, 1]], axis=1).mean())
+        self.touch_tol = float(touch_tol)
         self.diag = float(np.linalg.norm(rest.max(0) - rest.min(0)))
-        self.tau = touch_tol * self.ell
         self.cap = clearance_cap * self.diag
         self.eps = boundary_eps * self.diag
-        self.closed = bool((topo.face_count == 2).all())
-        self._edge_faces = edge_faces(topo.face_edges, len(self.edges))
         tri = rest[self.faces]
-        if self.closed:  # outward orientation: positive enclosed volume
-            vol = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0
-            self.orient = 1.0 if vol >= 0 else -1.0
-        else:
-            self.orient = 1.0
         ext = (tri.max(1) - tri.min(1)).max(1)
         self.cell = cell_factor * float(ext.mean())
-        # vertex adjacency in CSR form with edge ids (for the flood fill)
-        nbr = vertex_neighbors(self.edges, self.n_vertices)
-        counts = (nbr >= 0).sum(1)
-        self.adj_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        self.adj_idx = nbr[nbr >= 0].astype(np.int64)
-        lo = np.minimum(np.repeat(np.arange(self.n_vertices), counts), self.adj_idx)
-        hi = np.maximum(np.repeat(np.arange(self.n_vertices), counts), self.adj_idx)
-        self.adj_eid = np.searchsorted(self.edges[:, 0] * self.n_vertices + self.edges[:, 1],
-                                       lo * self.n_vertices + hi).astype(np.int64)
         self.set_partition(partition)
         self._rest_centroids = np.ascontiguousarray(tri.mean(1))
         self._cell_factor = float(cell_factor)
@@ -305,6 +287,75 @@ class ExactLabeler(MeshByMesh):
             raise ValueError(f"far_clusters={far_clusters!r} must be in [0, 8] (0: no clusters)")
         self._near = None  # (near_ptr, near_b, near_rest, near_shared), built on first need (near_tables)
         self._cluster_state = None
+
+    # ------------------------------------------------------------------ the mesh's edges, built on first need
+    # (the verdict needs only the faces and their boxes: a large mesh's check does not pay for these)
+    @cached_property
+    def _topology(self):
+        return edge_topology(self.faces)
+
+    @cached_property
+    def edges(self) -> np.ndarray:
+        """(E, 2) the mesh's edges, sorted pairs (low, high)."""
+        return self._topology.edges
+
+    @cached_property
+    def ell(self) -> float:
+        """The rest mesh's mean edge length."""
+        return float(np.linalg.norm(self.rest[self.edges[:, 0]] - self.rest[self.edges[:, 1]], axis=1).mean())
+
+    def _scale(self) -> float:
+        """The depth scale of a verdict: the depth is read only against a touching tolerance, so with none the
+        edges need not be built."""
+        return self.ell if self.touch_tol else 1.0
+
+    @property
+    def tau(self) -> float:
+        """The touching tolerance ``touch_tol * ell`` (0: exact verdicts)."""
+        return self.touch_tol * self.ell if self.touch_tol else 0.0
+
+    @cached_property
+    def closed(self) -> bool:
+        """Every edge has two faces."""
+        return bool((self._topology.face_count == 2).all())
+
+    @cached_property
+    def _edge_faces(self) -> np.ndarray:
+        return edge_faces(self._topology.face_edges, len(self.edges))
+
+    @cached_property
+    def orient(self) -> float:
+        """+1, or -1 where a closed rest mesh encloses a negative volume (its faces wound inwards)."""
+        if not self.closed:
+            return 1.0
+        tri = self.rest[self.faces]
+        vol = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0
+        return 1.0 if vol >= 0 else -1.0
+
+    @cached_property
+    def _adjacency(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Vertex adjacency in CSR form with edge ids (for the flood fill): adj_ptr, adj_idx, adj_eid."""
+        nbr = vertex_neighbors(self.edges, self.n_vertices)
+        counts = (nbr >= 0).sum(1)
+        ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        idx = nbr[nbr >= 0].astype(np.int64)
+        lo = np.minimum(np.repeat(np.arange(self.n_vertices), counts), idx)
+        hi = np.maximum(np.repeat(np.arange(self.n_vertices), counts), idx)
+        eid = np.searchsorted(self.edges[:, 0] * self.n_vertices + self.edges[:, 1],
+                              lo * self.n_vertices + hi).astype(np.int64)
+        return ptr, idx, eid
+
+    @property
+    def adj_ptr(self) -> np.ndarray:
+        return self._adjacency[0]
+
+    @property
+    def adj_idx(self) -> np.ndarray:
+        return self._adjacency[1]
+
+    @property
+    def adj_eid(self) -> np.ndarray:
+        return self._adjacency[2]
 
     # ------------------------------------------------------------------ the rest mesh's tables, built on first need
     def near_tables(self) -> None:
@@ -388,13 +439,13 @@ class ExactLabeler(MeshByMesh):
         """True iff the mesh self-collides (early exit at the first counted pair)."""
         v = self._check(vertices)
         lo, hi = triangle_aabbs(v, self.faces, 0.0)
-        return bool(verdict_kernel(v, self.faces, lo, hi, self.cell, self.ell, self.tau))
+        return bool(verdict_kernel(v, self.faces, lo, hi, self.cell, self._scale(), self.tau))
 
     def intersecting_pairs(self, vertices) -> np.ndarray:
         """All counted intersecting triangle pairs, (P, 2) int64 sorted."""
         v = self._check(vertices)
         pairs = self.candidate_pairs(v)
-        return pairs[counted_mask(v, self.faces, pairs, self.ell, self.tau)]
+        return pairs[counted_mask(v, self.faces, pairs, self._scale(), self.tau)]
 
     def label(self, vertices) -> Label:
         """Verdict, number of counted pairs, PD and PD_i of one mesh (V, 3)."""
