@@ -41,32 +41,35 @@ def mesh_dir(tmp_path_factory) -> Path:
 
 def test_text_output(mesh_dir):
     res = run_cli(mesh_dir)
-    assert res.returncode == 0, res.stderr
+    assert res.returncode == 1, res.stderr  # as neuralcol check: some mesh collides
     lines = res.stdout.splitlines()
     assert len(lines) == 2, res.stdout
     free, coll = (line.split() for line in lines)
     assert free[0] == str(mesh_dir / "2.obj") and coll[0] == str(mesh_dir / "10.obj")
-    assert free[1:3] == ["collides=false", "pairs=0"] and float(free[3].removeprefix("pd=")) < 0
-    assert coll[1] == "collides=true" and int(coll[2].removeprefix("pairs=")) > 0
+    assert free[1:3] == ["free", "pairs=0"] and float(free[3].removeprefix("pd=")) < 0
+    assert coll[1] == "collides" and int(coll[2].removeprefix("pairs=")) > 0
     assert float(coll[3].removeprefix("pd=")) > 0
-    assert lines[0].index("collides=") == lines[1].index("collides=")  # aligned columns
+    assert lines[0].index("pairs=") == lines[1].index("pairs=")  # aligned columns
+    check = subprocess.run([sys.executable, "-m", "neuralcol.cli", "check", str(mesh_dir)], cwd=ROOT,
+                           capture_output=True, text=True, timeout=120)
+    assert (check.returncode, check.stdout) == (res.returncode, res.stdout), "the same as neuralcol check"
 
 
 def test_json_output_and_workers(mesh_dir):
     res = run_cli(mesh_dir / "10.obj", mesh_dir / "2.obj", "--json", "--workers", "2")
-    assert res.returncode == 0, res.stderr
+    assert res.returncode == 1, res.stderr
     rows = [json.loads(line) for line in res.stdout.splitlines()]
-    assert [set(r) for r in rows] == [{"file", "collides", "n_pairs", "pd"}] * 2
+    assert [set(r) for r in rows] == [{"file", "collides", "pairs", "pd"}] * 2
     coll, free = rows
     assert coll["file"] == str(mesh_dir / "10.obj") and free["file"] == str(mesh_dir / "2.obj")
-    assert coll["collides"] is True and isinstance(coll["n_pairs"], int) and coll["n_pairs"] > 0
+    assert coll["collides"] is True and isinstance(coll["pairs"], int) and coll["pairs"] > 0
     assert coll["pd"] > 0
-    assert free["collides"] is False and free["n_pairs"] == 0 and free["pd"] < 0
+    assert free["collides"] is False and free["pairs"] == 0 and free["pd"] < 0
     # the verdict does not depend on the order (the rest mesh is 10.obj here) nor on --rest
     res_rest = run_cli(mesh_dir / "10.obj", mesh_dir / "2.obj", "--json", "--rest", mesh_dir / "2.obj")
-    assert res_rest.returncode == 0, res_rest.stderr
+    assert res_rest.returncode == 1, res_rest.stderr
     rows_rest = [json.loads(line) for line in res_rest.stdout.splitlines()]
-    assert [(r["collides"], r["n_pairs"]) for r in rows_rest] == [(r["collides"], r["n_pairs"]) for r in rows]
+    assert [(r["collides"], r["pairs"]) for r in rows_rest] == [(r["collides"], r["pairs"]) for r in rows]
 
 
 def test_broken_and_missing_paths(mesh_dir, tmp_path):
@@ -98,7 +101,7 @@ def test_scape():
     if not (SCAPE / "8.obj").is_file() or not (SCAPE / "1.obj").is_file():
         pytest.skip(f"SCAPE meshes 1.obj and 8.obj not found in {SCAPE}")
     res = run_cli(SCAPE / "1.obj", SCAPE / "8.obj", "--json")
-    assert res.returncode == 0, res.stderr
+    assert res.returncode == 1, res.stderr
     free, coll = (json.loads(line) for line in res.stdout.splitlines())
-    assert free["collides"] is False and free["n_pairs"] == 0 and free["pd"] < 0
-    assert coll["collides"] is True and coll["n_pairs"] == 73 and coll["pd"] > 0
+    assert free["collides"] is False and free["pairs"] == 0 and free["pd"] < 0
+    assert coll["collides"] is True and coll["pairs"] == 73 and coll["pd"] > 0

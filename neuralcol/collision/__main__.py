@@ -1,8 +1,10 @@
 """Command line labeler: ``python -m neuralcol.collision PATH... [--json] [--rest FILE] [--workers N]``.
 
-Prints the exact self-collision label of every mesh file (see :mod:`neuralcol.collision.labeler` for the
-definitions), one line per mesh in the order given. Unreadable files are reported on stderr, the other
-meshes are still labelled, and the exit code is then 2. Does not import torch.
+``neuralcol check`` with label workers: prints the exact self-collision label of every mesh file (see
+:mod:`neuralcol.collision.labeler` for the definitions), one line per mesh in the order given, in ``neuralcol
+check``'s format (the same JSON keys ``file``, ``collides``, ``pairs``, ``pd``; the same exit status: 0 every mesh
+free, 1 some mesh collides, 2 some file unreadable, reported on stderr while the other meshes are still labelled).
+Does not import torch.
 """
 
 from __future__ import annotations
@@ -20,10 +22,10 @@ import numpy as np
 from neuralcol.collision.labeler import ExactLabeler, Label
 from neuralcol.collision.pool import LabelPool
 from neuralcol.geometry.mesh_files import MeshEntry, expand_paths, failure_reason, read_entry, topology_key
-from neuralcol.geometry.mesh_io import MESH_SUFFIXES
+from neuralcol.geometry.source_mesh import SOURCE_SUFFIXES as MESH_SUFFIXES
 
 PROG = "python -m neuralcol.collision"
-EXIT_OK, EXIT_UNREADABLE = 0, 2
+EXIT_FREE, EXIT_COLLIDES, EXIT_UNREADABLE = 0, 1, 2  # as neuralcol check
 
 DESCRIPTION = (
     "Label triangle meshes for self-collision. A mesh collides iff some pair of non-adjacent triangles "
@@ -41,8 +43,8 @@ EPILOG = (
     "the --rest mesh if it has the group's topology, otherwise the group's first mesh in the order given. "
     "The verdict and the pair count do not depend on the rest mesh. "
     f"A folder PATH means all its {'/'.join(MESH_SUFFIXES)} files in natural order (2.obj "
-    "before 10.obj). Exit status: 0 if every mesh was read and labelled, 2 if some PATH or file could not be "
-    "(reported on stderr, one line each; the other meshes are still labelled)."
+    "before 10.obj). Exit status (as neuralcol check): 0 every mesh free, 1 some mesh collides, 2 some PATH or file "
+    "could not be read or labelled (reported on stderr, one line each; the other meshes are still labelled)."
 )
 
 
@@ -50,9 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the command line labeler."""
     parser = argparse.ArgumentParser(prog=PROG, description=DESCRIPTION, epilog=EPILOG)
     parser.add_argument("paths", nargs="+", metavar="PATH",
-                        help="mesh files (.obj, .ply, .off) or folders of mesh files")
+                        help="mesh files (.obj, .off, .ply, .stl) or folders of mesh files")
     parser.add_argument("--json", action="store_true",
-                        help="print one JSON object per line with keys file, collides, n_pairs, pd")
+                        help="print one JSON object per line with keys file, collides, pairs, pd")
     parser.add_argument("--rest", metavar="FILE", default=None,
                         help="rest mesh for the meshes of its topology (default: the first mesh of each topology)")
     parser.add_argument("--workers", type=int, default=0, metavar="N",
@@ -71,13 +73,13 @@ def label_group(labeler: ExactLabeler, vertices: np.ndarray, workers: int) -> li
 
 
 def format_line(name: str, label: Label, as_json: bool, name_width: int = 0, pairs_width: int = 0) -> str:
-    """One output line: aligned text, or a JSON object with keys file, collides, n_pairs, pd."""
+    """One output line, as ``neuralcol check`` prints it: aligned text, or a JSON object with keys file, collides,
+    pairs, pd."""
     if as_json:
-        return json.dumps({"file": name, "collides": bool(label.collides), "n_pairs": int(label.n_pairs),
+        return json.dumps({"file": name, "collides": bool(label.collides), "pairs": int(label.n_pairs),
                            "pd": float(label.pd)})
-    collides = "true" if label.collides else "false"
-    return (f"{name:<{name_width}}  collides={collides:<5}  pairs={label.n_pairs:<{pairs_width}d}  "
-            f"pd={label.pd:.6g}")
+    return (f"{name:<{name_width}}  {'collides' if label.collides else 'free':<8}  "
+            f"pairs={label.n_pairs:<{max(pairs_width, 6)}d}  pd={label.pd:.6g}")
 
 
 def main(argv: Sequence[str] | None = None, out: TextIO | None = None, err: TextIO | None = None) -> int:
@@ -89,7 +91,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None, err: Text
         err: stream for unreadable files and notes (default stderr).
 
     Returns:
-        The exit status: 0 if every mesh was read and labelled, 2 otherwise.
+        The exit status: 2 if some mesh could not be read or labelled, else 1 if some mesh collides, else 0.
     """
     out = sys.stdout if out is None else out
     err = sys.stderr if err is None else err
@@ -154,7 +156,9 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None, err: Text
     except BrokenPipeError:  # e.g. piped into `head`: stop quietly
         if out is sys.stdout:
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-    return EXIT_OK if ok else EXIT_UNREADABLE
+    if not ok:
+        return EXIT_UNREADABLE
+    return EXIT_COLLIDES if any(lb.collides for lb in labels.values()) else EXIT_FREE
 
 
 if __name__ == "__main__":
