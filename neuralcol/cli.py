@@ -59,6 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
     chk.add_argument("paths", nargs="+", metavar="PATH", help="mesh files (.obj, .off, .ply, .stl; triangles or "
                                                                      "polygons) or folders of them")
     chk.add_argument("--json", action="store_true", help="one JSON object per mesh: file, collides, pairs, pd")
+    chk.add_argument("--rule", choices=("paper", "cgal"), default="paper",
+                     help="paper (default): triangles count when their interiors meet, edge neighbours never; "
+                          "cgal: CGAL's self_intersections, pair for pair (closed triangles: touching counts, "
+                          "edge neighbours folded flat count, a degenerate face pairs with itself; pd null)")
     chk.add_argument("--verdict", action="store_true", help="the verdict alone, which stops at the first "
                                                             "intersecting pair (pairs and pd not computed: null)")
     chk.add_argument("--pairs", action="store_true", help="also list the intersecting face pairs, as indices of "
@@ -144,7 +148,16 @@ def check_main(args, out: TextIO, err: TextIO) -> int:
     for idx in inputs.groups.values():
         vertices, faces, rest = inputs.group_arrays(idx)
         try:
-            if args.verdict:
+            if args.rule == "cgal":
+                from neuralcol.api.anymesh import labeler_for
+
+                lab = labeler_for(faces, rest, clearance=False)
+                for k, i in enumerate(idx):
+                    tri = lab.closed_rule_pairs(vertices[k])
+                    rows[i] = (bool(len(tri)), int(len(tri)), None)
+                    if args.pairs:
+                        listed[i] = inputs.sources[i].file_pairs(tri, keep_self=True).tolist()
+            elif args.verdict:
                 from neuralcol.api.anymesh import labeler_for
 
                 lab = labeler_for(faces, rest, clearance=False)
@@ -158,7 +171,7 @@ def check_main(args, out: TextIO, err: TextIO) -> int:
             for i in idx:
                 inputs.fail(i, f"cannot check: {' '.join(str(exc).split())}")
             continue
-        if args.pairs:
+        if args.pairs and args.rule == "paper":
             from neuralcol.api.anymesh import labeler_for
 
             lab = labeler_for(faces, rest, clearance=False)
@@ -170,14 +183,14 @@ def check_main(args, out: TextIO, err: TextIO) -> int:
         name, (collides, pairs, pd) = inputs.entries[i].name, rows[i]
         note = inputs.reading_note(i)
         if args.json:
-            row = {"file": name, "collides": collides, "pairs": pairs, "pd": pd}
+            row = {"file": name, "collides": collides, "pairs": pairs, "pd": pd, "rule": args.rule}
             if note:
                 row["note"] = note
             if args.pairs:
                 row["pair_list"] = listed[i]
             print(json.dumps(row), file=out)
         else:
-            figures = "" if pairs is None else f"  pairs={pairs:<6d}  pd={pd:.6g}"
+            figures = "" if pairs is None else f"  pairs={pairs:<6d}" + ("" if pd is None else f"  pd={pd:.6g}")
             print(f"{name:<{width}}  {'collides' if collides else 'free':<8}{figures}"
                   + (f"  ({note})" if note else ""), file=out)
             if args.pairs and listed[i]:

@@ -64,6 +64,7 @@ from typing import NamedTuple
 import numpy as np
 
 from neuralcol.collision.kernels.broadphase import drop_adjacent, grid_pairs, triangle_aabbs
+from neuralcol.collision.kernels.closed_rule import closed_pairs_mask, degenerate_faces
 from neuralcol.collision.kernels.clusters import cluster_boxes, rest_clusters, static_blocks
 from neuralcol.collision.kernels.depth import triangle_axes
 from neuralcol.collision.kernels.distance import corner_cones
@@ -446,6 +447,18 @@ class ExactLabeler(MeshByMesh):
         v = self._check(vertices)
         pairs = self.candidate_pairs(v)
         return pairs[counted_mask(v, self.faces, pairs, self._scale(), self.tau)]
+
+    def closed_rule_pairs(self, vertices) -> np.ndarray:
+        """The intersecting pairs (P, 2) int64 sorted under CGAL's closed rule (touching counts, edge neighbours
+        folded flat count: :mod:`~neuralcol.collision.kernels.closed_rule`), not the paper's; what CGAL's
+        ``self_intersections`` reports, pair for pair."""
+        v = self._check(vertices)
+        lo, hi = triangle_aabbs(v, self.faces, 0.0)
+        pairs = grid_pairs(lo, hi, self.cell)
+        pairs = pairs[closed_pairs_mask(v, self.faces, pairs)]
+        flat = np.flatnonzero(degenerate_faces(v, self.faces))  # CGAL reports a degenerate face with itself
+        pairs = np.concatenate([pairs.reshape(-1, 2), np.stack([flat, flat], 1)]).astype(np.int64)
+        return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
 
     def label(self, vertices) -> Label:
         """Verdict, number of counted pairs, PD and PD_i of one mesh (V, 3)."""

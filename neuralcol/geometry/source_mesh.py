@@ -65,10 +65,13 @@ class SourceMesh:
         v = np.asarray(vertices, np.float64)
         return v.astype(np.float32).astype(np.float64) if self._state.get("float32", False) else v.copy()
 
-    def file_pairs(self, pairs: np.ndarray) -> np.ndarray:
-        """Triangle pairs (P, 2) as pairs of the file's faces (sorted, unique; a polygon's own triangles dropped)."""
-        p = np.sort(self.face_of_triangle[np.asarray(pairs, np.int64).reshape(-1, 2)], axis=1)
-        p = p[p[:, 0] != p[:, 1]]
+    def file_pairs(self, pairs: np.ndarray, keep_self: bool = False) -> np.ndarray:
+        """Triangle pairs (P, 2) as pairs of the file's faces (sorted, unique). A pair within one file face is dropped
+        (a polygon's own triangles), unless ``keep_self`` and the pair is a triangle with itself (CGAL's rule reports a
+        degenerate face so)."""
+        t = np.asarray(pairs, np.int64).reshape(-1, 2)
+        p = np.sort(self.face_of_triangle[t], axis=1)
+        p = p[(p[:, 0] != p[:, 1]) | (keep_self & (t[:, 0] == t[:, 1]))]
         return np.unique(p, axis=0) if len(p) else np.zeros((0, 2), np.int64)
 
     def to_bytes(self, vertices: np.ndarray) -> bytes:
