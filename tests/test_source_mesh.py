@@ -143,8 +143,11 @@ def test_unreadable_files_name_the_file_in_one_line(tmp_path):
     bad.write_text("NOT AN OFF\n")
     with pytest.raises(MeshFileError, match=r"bad\.off: does not start with OFF"):
         read_source(bad)
+    (tmp_path / "x.fbx").write_text("{}")
+    with pytest.raises(MeshFileError, match=r"unsupported mesh format '\.fbx'"):
+        read_source(tmp_path / "x.fbx")
     (tmp_path / "x.gltf").write_text("{}")
-    with pytest.raises(MeshFileError, match=r"unsupported mesh format '\.gltf'"):
+    with pytest.raises(MeshFileError, match=r"x\.gltf: no triangle primitive"):
         read_source(tmp_path / "x.gltf")
 
 
@@ -181,3 +184,64 @@ def test_handle_orders_a_folder_like_the_cli(tmp_path):
         (tmp_path / name).write_text("")
     assert [p.name for p in expand_folders([tmp_path])] == [e.path.name for e in expand_paths([str(tmp_path)])] == [
         "1.OBJ", "2.obj", "10.obj", "b.ply"]
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+def test_gltf_nodes_transforms_and_normals_written_back(tmp_path, suffix):
+    """A glTF scene of two nodes (one rotated and moved) is read in world coordinates as trimesh reads it; written
+    back, only the moved vertices' positions (in each node's frame, float32) and their normals change, accessor
+    bounds follow, and a .gltf's separate buffers are written beside the output."""
+    import trimesh
+
+    scene = trimesh.Scene()
+    transform = trimesh.transformations.rotation_matrix(0.3, [0, 0, 1])
+    transform[:3, 3] = [0.9, 0.1, 0.0]
+    scene.add_geometry(trimesh.creation.icosphere(subdivisions=2), node_name="sphere")
+    scene.add_geometry(trimesh.creation.box(extents=(1, 1, 1)), node_name="box", transform=transform)
+    path = tmp_path / f"scene{suffix}"
+    scene.export(path)
+    mesh = read_source(path)
+    reference = trimesh.load(path, force="mesh")
+    assert mesh.vertices.shape == reference.vertices.shape and mesh.faces.shape == reference.faces.shape
+    np.testing.assert_allclose(np.sort(mesh.vertices, axis=0), np.sort(reference.vertices, axis=0), atol=1e-6)
+    moved = mesh.vertices.copy()
+    moved[-3:] += [0.05, -0.02, 0.01]  # corners of the rotated box
+    out = mesh.write(tmp_path / "out" / path.name, moved)
+    again = read_source(out)
+    np.testing.assert_array_equal(again.faces, mesh.faces)
+    np.testing.assert_array_equal(again.vertices, mesh.stored(moved))
+    np.testing.assert_array_equal(again.vertices[:-3], mesh.vertices[:-3])
+    assert np.abs(again.vertices[-3:] - moved[-3:]).max() < 1e-6
+    a, b = trimesh.load(path, force="mesh"), trimesh.load(out, force="mesh")
+    assert a.vertex_normals.shape == b.vertex_normals.shape and not np.allclose(a.vertex_normals, b.vertex_normals)
+    unchanged = mesh.write(tmp_path / "same" / path.name, mesh.vertices)
+    assert unchanged.read_bytes() == path.read_bytes()
+
+
+def test_gltf_instances_moved_apart_are_refused_on_writing(tmp_path):
+    """One mesh placed by two nodes: read as two copies; moving them apart cannot be written into the one accessor."""
+    v = CUBE.astype(np.float32)
+    tris = np.concatenate([QUADS[:, [0, 1, 2]], QUADS[:, [0, 2, 3]]]).astype(np.uint32)
+    blob = v.tobytes() + tris.tobytes()
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0, 1]}],
+           "nodes": [{"mesh": 0}, {"mesh": 0, "translation": [0.5, 0.2, 0.1]}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+           "buffers": [{"byteLength": len(blob)}],
+           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": v.nbytes},
+                           {"buffer": 0, "byteOffset": v.nbytes, "byteLength": tris.nbytes}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 8, "type": "VEC3",
+                          "min": [0, 0, 0], "max": [1, 1, 1]},
+                         {"bufferView": 1, "componentType": 5125, "count": 36, "type": "SCALAR"}]}
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(blob), 0x004E4942) + blob
+    path = tmp_path / "two.glb"
+    path.write_bytes(b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body)
+    mesh = read_source(path)
+    assert len(mesh.vertices) == 16 and len(mesh.faces) == 24
+    np.testing.assert_allclose(mesh.vertices[8:], CUBE + [0.5, 0.2, 0.1], atol=1e-7)
+    moved = mesh.vertices + 0.01  # both instances alike: one accessor holds it
+    np.testing.assert_allclose(read_source(mesh.write(tmp_path / "same.glb", moved)).vertices, moved, atol=1e-6)
+    moved[0] += 0.1
+    with pytest.raises(MeshFileError, match="instanced by several nodes"):
+        mesh.write(tmp_path / "o.glb", moved)

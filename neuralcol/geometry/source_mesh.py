@@ -28,7 +28,7 @@ import numpy as np
 from neuralcol.errors import MeshFileError
 from neuralcol.geometry.topology import check_coordinates, check_face_indices
 
-SOURCE_SUFFIXES = (".obj", ".off", ".ply", ".stl")
+SOURCE_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".glb", ".gltf")
 
 
 @dataclass
@@ -61,8 +61,11 @@ class SourceMesh:
 
     def stored(self, vertices: np.ndarray) -> np.ndarray:
         """``vertices`` (V, 3) as this file will hold them once written: rounded to the file's float32 where its
-        positions are float32 (binary STL, PLY with ``float`` coordinates), as they are otherwise."""
+        positions are float32 (binary STL, PLY with ``float`` coordinates, glTF: in each node's own frame), as they
+        are otherwise."""
         v = np.asarray(vertices, np.float64)
+        if self.kind == "gltf":
+            return _gltf_stored(self, v)
         return v.astype(np.float32).astype(np.float64) if self._state.get("float32", False) else v.copy()
 
     def file_pairs(self, pairs: np.ndarray, keep_self: bool = False) -> np.ndarray:
@@ -90,9 +93,22 @@ class SourceMesh:
         if not overwrite and path.exists() and path.resolve() == self.path.resolve():
             raise MeshFileError(f"{path}: is the input file; write the result elsewhere (or ask to overwrite it)")
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_bytes(self.to_bytes(vertices))
-        tmp.replace(path)
+        files = {path: self.to_bytes(vertices)}
+        if self.kind == "gltf" and not self._state["binary"]:  # a .gltf's separate buffers go beside it
+            if files[path] is self._data:  # unchanged: its buffers as read
+                self._state["external"] = {b["uri"]: bytes(self._state["buffers"][k])
+                                           for k, b in enumerate(self._state["doc"].get("buffers", []))
+                                           if "uri" in b and not b["uri"].startswith("data:")}
+            for uri, blob in self._state["external"].items():
+                target = path.parent / uri
+                if not overwrite and target.exists() and target.resolve() == (self.path.parent / uri).resolve():
+                    raise MeshFileError(f"{target}: is the input's buffer; write the result elsewhere (or ask to "
+                                        "overwrite it)")
+                files[target] = blob
+        for target, blob in files.items():
+            tmp = target.with_name(target.name + ".tmp")
+            tmp.write_bytes(blob)
+            tmp.replace(target)
         return path
 
 
@@ -547,7 +563,196 @@ def _write_stl(mesh: SourceMesh, v: np.ndarray) -> bytes:
     return _encode("".join(out))
 
 
-_READERS = {"obj": _read_obj, "off": _read_off, "ply": _read_ply, "stl": _read_stl}
-_WRITERS = {"obj": _write_obj, "off": _write_off, "ply": _write_ply, "stl": _write_stl}
+# --------------------------------------------------------------------------------------------- glTF / GLB
+_GLTF_TYPES = {5120: "i1", 5121: "u1", 5122: "i2", 5123: "u2", 5125: "u4", 5126: "f4"}
+_GLTF_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+
+
+def _gltf_parts(path: Path, data: bytes) -> tuple[dict, list[bytearray], bool]:
+    """The glTF JSON, its buffers (bytearrays) and whether the file is binary (GLB)."""
+    import base64
+    import json
+
+    if data[:4] == b"glTF":
+        length = struct.unpack("<I", data[8:12])[0]
+        at, doc, chunks = 12, None, []
+        while at < min(length, len(data)):
+            size, kind = struct.unpack("<II", data[at:at + 8])
+            body = data[at + 8:at + 8 + size]
+            if kind == 0x4E4F534A:
+                doc = json.loads(body.decode("utf-8"))
+            elif kind == 0x004E4942:
+                chunks.append(bytearray(body))
+            at += 8 + size
+        if doc is None:
+            raise MeshFileError("a GLB without a JSON chunk")
+        buffers = []
+        for buf in doc.get("buffers", []):
+            buffers.append(chunks[0] if "uri" not in buf and chunks else _gltf_uri(path, buf, base64))
+        return doc, buffers, True
+    doc = json.loads(data.decode("utf-8"))
+    return doc, [_gltf_uri(path, buf, base64) for buf in doc.get("buffers", [])], False
+
+
+def _gltf_uri(path: Path, buf: dict, base64) -> bytearray:
+    uri = buf.get("uri", "")
+    if uri.startswith("data:"):
+        return bytearray(base64.b64decode(uri.split(",", 1)[1]))
+    target = path.parent / uri
+    if not target.is_file():
+        raise MeshFileError(f"its buffer {uri!r} is not beside it")
+    return bytearray(target.read_bytes())
+
+
+def _gltf_view(doc: dict, buffers: list, index: int) -> np.ndarray:
+    """Accessor ``index`` as a (count, width) array view into its buffer (strided views kept writable)."""
+    acc = doc["accessors"][index]
+    if "sparse" in acc or "bufferView" not in acc:
+        raise MeshFileError(f"accessor {index} is sparse or has no buffer view: not supported")
+    view = doc["bufferViews"][acc["bufferView"]]
+    dtype = np.dtype("<" + _GLTF_TYPES[acc["componentType"]])
+    width = _GLTF_WIDTH[acc["type"]]
+    stride = view.get("byteStride") or dtype.itemsize * width
+    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    buf = buffers[view["buffer"]]
+    return np.ndarray((acc["count"], width), dtype, buffer=buf, offset=start, strides=(stride, dtype.itemsize))
+
+
+def _gltf_matrix(node: dict) -> np.ndarray:
+    if "matrix" in node:
+        return np.array(node["matrix"], np.float64).reshape(4, 4).T  # column-major in the file
+    t = np.array(node.get("translation", [0, 0, 0]), np.float64)
+    x, y, z, w = node.get("rotation", [0, 0, 0, 1])
+    r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    m = np.eye(4)
+    m[:3, :3] = r * np.array(node.get("scale", [1, 1, 1]), np.float64)[None, :]
+    m[:3, 3] = t
+    return m
+
+
+def _read_gltf(path: Path, data: bytes) -> SourceMesh:
+    doc, buffers, binary = _gltf_parts(path, data)
+    scenes = doc.get("scenes", [])
+    roots = scenes[doc.get("scene", 0)]["nodes"] if scenes else list(range(len(doc.get("nodes", []))))
+    blocks, xyz, tris, owner = [], [], [], []
+    stack = [(n, np.eye(4)) for n in roots]
+    while stack:
+        n, parent = stack.pop(0)
+        node = doc["nodes"][n]
+        world = parent @ _gltf_matrix(node)
+        stack += [(c, world) for c in node.get("children", [])]
+        if "mesh" not in node:
+            continue
+        for prim in doc["meshes"][node["mesh"]]["primitives"]:
+            mode = prim.get("mode", 4)
+            if mode not in (4, 5, 6) or "POSITION" not in prim["attributes"]:
+                continue  # points and lines bound nothing
+            local = _gltf_view(doc, buffers, prim["attributes"]["POSITION"]).astype(np.float64)
+            idx = (_gltf_view(doc, buffers, prim["indices"])[:, 0].astype(np.int64) if "indices" in prim
+                   else np.arange(len(local)))
+            if mode == 4:
+                t = idx.reshape(-1, 3)
+            elif mode == 5:  # strip: every other triangle flipped to keep the winding
+                t = np.array([(idx[i], idx[i + 1], idx[i + 2]) if i % 2 == 0 else (idx[i + 1], idx[i], idx[i + 2])
+                              for i in range(len(idx) - 2)], np.int64).reshape(-1, 3)
+            else:  # fan
+                t = np.array([(idx[0], idx[i], idx[i + 1]) for i in range(1, len(idx) - 1)], np.int64).reshape(-1, 3)
+            base = sum(len(x) for x in xyz)
+            xyz.append(local @ world[:3, :3].T + world[:3, 3])
+            tris.append(t + base)
+            owner.append(np.full(len(t), len(blocks)))
+            blocks.append({"accessor": prim["attributes"]["POSITION"], "normal": prim["attributes"].get("NORMAL"),
+                           "world": world, "start": base, "count": len(local), "tris": t})
+    if not blocks:
+        raise MeshFileError("no triangle primitive in its scene")
+    faces = np.concatenate(tris)
+    mesh = SourceMesh(path, "gltf", np.concatenate(xyz), faces, np.arange(len(faces), dtype=np.int64), len(faces),
+                      _data=data)
+    mesh._state.update(doc=doc, buffers=buffers, binary=binary, blocks=blocks, float32=True)
+    return mesh
+
+
+def _gltf_local(block: dict, world_xyz: np.ndarray) -> np.ndarray:
+    m = block["world"]
+    return (world_xyz - m[:3, 3]) @ np.linalg.inv(m[:3, :3]).T
+
+
+def _gltf_stored(mesh: SourceMesh, v: np.ndarray) -> np.ndarray:
+    out = v.copy()
+    for b in mesh._state["blocks"]:
+        sl = slice(b["start"], b["start"] + b["count"])
+        local = _gltf_local(b, v[sl]).astype(np.float32).astype(np.float64)
+        out[sl] = local @ b["world"][:3, :3].T + b["world"][:3, 3]
+    moved_not = (v == mesh.vertices).all(1)
+    out[moved_not] = mesh.vertices[moved_not]  # unmoved vertices are written back as they were read
+    return out
+
+
+def _write_gltf(mesh: SourceMesh, v: np.ndarray) -> bytes:
+    import base64
+    import copy
+    import json
+
+    st = mesh._state
+    doc = copy.deepcopy(st["doc"])
+    buffers = [bytearray(b) for b in st["buffers"]]
+    written: dict[int, np.ndarray] = {}
+    for b in st["blocks"]:
+        sl = slice(b["start"], b["start"] + b["count"])
+        if not (v[sl] != mesh.vertices[sl]).any():
+            continue
+        view = _gltf_view(doc, buffers, b["accessor"])
+        local = _gltf_local(b, v[sl]).astype(np.float32)
+        still = (v[sl] == mesh.vertices[sl]).all(1)
+        local[still] = view[still]  # a vertex that did not move keeps its stored value, bit for bit
+        if b["accessor"] in written and not np.array_equal(written[b["accessor"]], local):
+            raise MeshFileError("a mesh instanced by several nodes moved differently in each: write it as OBJ or PLY")
+        written[b["accessor"]] = local
+        old = view.astype(np.float64).copy()
+        view[:] = local
+        acc = doc["accessors"][b["accessor"]]
+        acc["min"], acc["max"] = local.min(0).tolist(), local.max(0).tolist()
+        if b["normal"] is not None:
+            _gltf_normals(doc, buffers, b, old, local.astype(np.float64))
+    if st["binary"]:
+        text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
+        text += b" " * (-len(text) % 4)
+        out = bytearray(struct.pack("<II", len(text), 0x4E4F534A)) + text
+        if buffers and "uri" not in doc["buffers"][0]:
+            body = bytes(buffers[0]) + b"\0" * (-len(buffers[0]) % 4)
+            out += struct.pack("<II", len(body), 0x004E4942) + body
+        return b"glTF" + struct.pack("<II", 2, 12 + len(out)) + bytes(out)
+    st["external"] = {}  # separate buffer files, written beside the output (SourceMesh.write)
+    for k, buf in enumerate(doc.get("buffers", [])):
+        if buf.get("uri", "").startswith("data:"):
+            buf["uri"] = buf["uri"].split(",", 1)[0] + "," + base64.b64encode(bytes(buffers[k])).decode("ascii")
+        elif "uri" in buf:
+            st["external"][buf["uri"]] = bytes(buffers[k])
+    return json.dumps(doc, indent=2).encode("utf-8")
+
+
+def _gltf_normals(doc: dict, buffers: list, block: dict, old: np.ndarray, new: np.ndarray) -> None:
+    """A primitive's vertex normals recomputed where its moved vertices' triangles touch them: area-weighted, on the
+    side of the file's normal."""
+    t = block["tris"]
+    moved = (old != new).any(1)
+    hit = np.zeros(len(new), bool)
+    hit[t[moved[t].any(1)].ravel()] = True
+    face_n = np.cross(new[t[:, 1]] - new[t[:, 0]], new[t[:, 2]] - new[t[:, 0]])
+    acc = np.zeros_like(new)
+    for k in range(3):
+        np.add.at(acc, t[:, k], face_n)
+    view = _gltf_view(doc, buffers, block["normal"])
+    stated = view.astype(np.float64)
+    n = _unit(acc)
+    n[(n * stated).sum(1) < 0] *= -1
+    view[hit] = n[hit].astype(view.dtype)
+
+
+_READERS = {"obj": _read_obj, "off": _read_off, "ply": _read_ply, "stl": _read_stl, "glb": _read_gltf,
+            "gltf": _read_gltf}
+_WRITERS = {"obj": _write_obj, "off": _write_off, "ply": _write_ply, "stl": _write_stl, "gltf": _write_gltf}
 
 __all__ = ["SOURCE_SUFFIXES", "SourceMesh", "read_source"]
