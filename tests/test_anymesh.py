@@ -119,7 +119,8 @@ def test_check_command_lines_json_and_exit_codes(folder):
     rows = [json.loads(line) for line in out.splitlines()]
     assert code == EXIT_COLLIDES and not err
     assert [Path(r["file"]).name for r in rows] == ["2.obj", "10.obj", "sheet.ply"]
-    assert [r["collides"] for r in rows] == [False, True, True] and set(rows[0]) == {"file", "collides", "pairs", "pd"}
+    assert [r["collides"] for r in rows] == [False, True, True]
+    assert set(rows[0]) == {"file", "collides", "pairs", "pd", "rule"} and rows[0]["rule"] == "paper"
     assert _run("check", folder / "2.obj")[0] == EXIT_FREE
     code, out, err = _run("check", folder / "2.obj", folder / "missing.obj")
     assert code == EXIT_BAD_INPUT and "missing.obj: no such file" in err and "2.obj" in out  # the rest still checked

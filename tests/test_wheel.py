@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -65,4 +66,5 @@ def test_wheel_installed_in_a_fresh_venv_carries_conf_and_the_shipped_model(tmp_
     assert resolved.returncode == 0 and (work / "out" / "two.obj").is_file(), resolved.stderr[-2000:]
     cfg = run("-m", "experiments.run", "--cfg", "job", "dataset=proc_hand")
     assert cfg.returncode == 0 and "proc_hand" in cfg.stdout, cfg.stderr[-2000:]
-    assert np.isfinite(float(check.stdout.split('"pd": ')[1].split("}")[0]))
+    row = json.loads(check.stdout)
+    assert row["rule"] == "paper" and np.isfinite(row["pd"]) and row["pd"] > 0
