@@ -2,7 +2,9 @@
 
 ``neuralcol check`` and ``neuralcol resolve`` read what DCC tools, scanners and game assets write: OBJ (triangles,
 quads, polygons, with ``vt``/``vn``/groups/materials, several objects), OFF, PLY (ascii and binary, any extra vertex
-and face properties, faces or triangle strips) and STL (ascii and binary triangle soups). :func:`read_source` gives the
+and face properties, faces or triangle strips), STL (ascii and binary triangle soups), glTF/GLB (the default scene's
+triangle primitives, placed by their nodes) and arrays (``.npz`` with ``vertices`` and ``faces``; its other arrays are
+written back as they were). :func:`read_source` gives the
 mesh the labeler needs, with vertices in the file's order and each polygon fan-triangulated, and keeps the file's
 bytes; :meth:`SourceMesh.write` writes the same file with the vertex positions replaced and nothing else changed:
 faces in the file's order (quads stay quads), texture coordinates, materials, groups, colours, comments and PLY
@@ -28,7 +30,7 @@ import numpy as np
 from neuralcol.errors import MeshFileError
 from neuralcol.geometry.topology import check_coordinates, check_face_indices
 
-SOURCE_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".glb", ".gltf")
+SOURCE_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".glb", ".gltf", ".npz")
 
 
 @dataclass
@@ -751,8 +753,43 @@ def _gltf_normals(doc: dict, buffers: list, block: dict, old: np.ndarray, new: n
     view[hit] = n[hit].astype(view.dtype)
 
 
+# --------------------------------------------------------------------------------------------- arrays
+_NPZ_KEYS = (("vertices", "faces"), ("v", "f"), ("verts", "faces"))
+
+
+def _read_npz(path: Path, data: bytes) -> SourceMesh:
+    import io
+
+    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    keys = next((k for k in _NPZ_KEYS if k[0] in arrays and k[1] in arrays), None)
+    if keys is None:
+        raise MeshFileError(f"holds arrays {sorted(arrays)}; save the mesh as vertices (V, 3) and faces (F, 3) "
+                            "(np.savez(path, vertices=..., faces=...))")
+    v, f = arrays[keys[0]], arrays[keys[1]]
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] < 3 or not np.issubdtype(f.dtype, np.integer):
+        raise MeshFileError(f"{keys[0]} {v.shape} and {keys[1]} {f.shape} {f.dtype}: give vertices (V, 3) and "
+                            "integer faces (F, 3) or polygons (F, k)")
+    faces, owner = _fan([list(map(int, row)) for row in f]) if f.shape[1] > 3 else (f.astype(np.int64),
+                                                                                      np.arange(len(f)))
+    mesh = SourceMesh(path, "npz", v.astype(np.float64), faces, np.asarray(owner, np.int64), len(f), _data=data)
+    mesh._state.update(arrays=arrays, key=keys[0], float32=v.dtype == np.float32)
+    return mesh
+
+
+def _write_npz(mesh: SourceMesh, v: np.ndarray) -> bytes:
+    import io
+
+    arrays = dict(mesh._state["arrays"])
+    arrays[mesh._state["key"]] = v.astype(arrays[mesh._state["key"]].dtype)
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
 _READERS = {"obj": _read_obj, "off": _read_off, "ply": _read_ply, "stl": _read_stl, "glb": _read_gltf,
-            "gltf": _read_gltf}
-_WRITERS = {"obj": _write_obj, "off": _write_off, "ply": _write_ply, "stl": _write_stl, "gltf": _write_gltf}
+            "gltf": _read_gltf, "npz": _read_npz}
+_WRITERS = {"obj": _write_obj, "off": _write_off, "ply": _write_ply, "stl": _write_stl, "gltf": _write_gltf,
+            "npz": _write_npz}
 
 __all__ = ["SOURCE_SUFFIXES", "SourceMesh", "read_source"]
