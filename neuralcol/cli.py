@@ -214,6 +214,7 @@ def _resolve_each(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarray, run
     """Resolve meshes (B, V, 3) of one topology one at a time (one labeler for all of them without a run): the
     results (B, V, 3), PD before and after (B,), untouched (B,) bool and seconds (B,) per mesh."""
     from neuralcol.api.anymesh import labeler_for, repair_batch, resolve
+    from neuralcol.repair.meshes import LARGE_FACES
     from neuralcol.utils.progress import progress_bar
 
     lab = None if run is not None else labeler_for(faces, rest, clearance=False)
@@ -224,7 +225,8 @@ def _resolve_each(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarray, run
     for k in progress_bar(range(n), desc="resolving", unit="mesh", disable=not progress):
         t0 = time.perf_counter()
         if run is None:
-            r = repair_batch(lab, rest, vertices[k:k + 1], faces, None, False)
+            r = repair_batch(lab, rest, vertices[k:k + 1], faces, None,
+                             progress and len(faces) >= LARGE_FACES)  # a large mesh: its exact checks counted
         else:
             r = resolve(vertices[k], faces, run=run)
         result[k] = r.vertices[0].detach().cpu().numpy()

@@ -278,3 +278,40 @@ def test_repair_package_numpy_in_numpy_out():
     np.testing.assert_allclose(out.median_move, np.median(moves, 1))
     assert np.isnan(out.move_to_depth[0])
     assert out.move_to_depth[1] == pytest.approx(moves[1].max() / out.pd_input[1])
+
+
+def test_repair_of_a_large_mesh_counts_its_exact_checks(monkeypatch):
+    """With progress, a mesh of LARGE_FACES faces or more gets a bar counting the exact checks; the result is the
+    same as without it."""
+    from fault_labelers import two_spheres
+
+    import neuralcol.repair.meshes as meshes
+    from neuralcol.collision.labeler import ExactLabeler
+
+    v, f = two_spheres(1.7, subdivisions=2)
+    lab = ExactLabeler(f, v, clearance=False)
+    plain = meshes.repair(v[None], f, lab)
+    counts = []
+
+    class Bar:
+        def __init__(self, **kw):
+            self.n = 0
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *a):
+            counts.append(self.n)
+
+        def update(self, k):
+            self.n += k
+
+        def set_postfix_str(self, *a, **kw):
+            pass
+
+    monkeypatch.setattr(meshes, "LARGE_FACES", len(f))
+    monkeypatch.setattr("neuralcol.utils.progress.progress_bar",
+                        lambda iterable=None, **kw: iterable if iterable is not None else Bar(**kw))
+    counted = meshes.repair(v[None], f, lab, progress=True)
+    np.testing.assert_array_equal(counted.vertices, plain.vertices)
+    assert counts and counts[0] >= 3, "every exact check counted (the input's label, the repair's, the result's)"

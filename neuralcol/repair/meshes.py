@@ -97,6 +97,35 @@ class Repaired(NamedTuple):
             return np.where(self.pd_input > 0, self.largest_move / self.pd_input, np.nan)
 
 
+# a mesh with this many faces or more takes seconds per exact check: with ``progress``, its checks are counted on
+# a bar of their own (the stages' iterations are not known in advance)
+LARGE_FACES = 20_000
+
+
+class CountedChecks:
+    """The labeler, with every exact check it makes counted on a progress bar (``checks``, with the pairs left)."""
+
+    def __init__(self, labeler, bar):
+        self._labeler, self._bar = labeler, bar
+
+    def __getattr__(self, name):
+        attr = getattr(self._labeler, name)
+        if name not in ("intersecting_pairs", "penetrations", "verdict", "label_batch"):
+            return attr
+
+        def counted(*args, **kwargs):
+            out = attr(*args, **kwargs)
+            pairs = getattr(out, "n_pairs", None)
+            if pairs is None and name == "intersecting_pairs":
+                pairs = len(out)
+            if pairs is not None and np.ndim(pairs) == 0:
+                self._bar.set_postfix_str(f"{int(pairs)} pairs", refresh=False)
+            self._bar.update(1)
+            return out
+
+        return counted
+
+
 def repair(vertices: np.ndarray, faces: np.ndarray, labeler, settings: RepairSettings | None = None,
            rest: np.ndarray | None = None, progress: bool = False) -> Repaired:
     """The exact repairs of meshes (B, V, 3) of one topology, without a trained run: each colliding mesh is repaired
@@ -110,13 +139,19 @@ def repair(vertices: np.ndarray, faces: np.ndarray, labeler, settings: RepairSet
             ``rest``: its ``eps`` and ``diag`` set the repairs' scale.
         settings: :class:`RepairSettings` (None: the defaults, ``handler.repair`` of ``conf/handler/default.yaml``).
         rest: (V, 3) the mesh whose winding says which side is out on a closed mesh (None: the first mesh).
-        progress: a progress bar over the colliding meshes.
+        progress: a progress bar over the colliding meshes; on a mesh of :data:`LARGE_FACES` faces or more, one that
+            counts the exact checks instead (a large mesh's repair takes minutes).
     """
     from neuralcol.repair.cap import cap_freed, displacement_stats
     from neuralcol.repair.contact import outward_sign
 
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
+    if progress and len(f) >= LARGE_FACES:
+        from neuralcol.utils.progress import progress_bar
+
+        with progress_bar(desc=f"exact checks ({len(f)} faces)", unit="check") as bar:
+            return repair(v, f, CountedChecks(labeler, bar), settings, rest, progress=False)
     settings = RepairSettings() if settings is None else settings
     base = v[0] if rest is None else np.asarray(rest, np.float64)
     pd_in = labeler.label_batch(v).pd
