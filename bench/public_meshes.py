@@ -5,8 +5,9 @@ resolve`` on each file, one process per call, the way they are typed.
     .venv/bin/python -m bench.public_meshes run [--timeout 180] [--max-faces 300000] [--only colliding]
     .venv/bin/python -m bench.public_meshes table
 
-``fetch`` copies every mesh file (.obj .off .ply .stl .glb .gltf, any case) out of each SOURCE into
-``bench/data/public/<name>/`` (ignored by git: the meshes are never copied into the tree) and records each file's
+``fetch`` copies every mesh file (.obj .off .ply .stl .glb .gltf .npz, any case; a .gltf's .bin buffers beside it)
+out of each SOURCE into ``bench/data/public/<name>/`` (ignored by git: the meshes are never copied into the tree) and
+records each file's
 source, commit, path, size and SHA-256 in ``bench/data/public/manifest.json``. A SOURCE is a git repository (a
 clone, or the bare snapshot the library's ``fetch`` brings, read at its HEAD), a plain folder, or a git URL (cloned
 shallow where the network allows). The corpus behind the docs: alecjacobson/common-3d-test-models, mikedh/trimesh
@@ -35,7 +36,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "bench" / "data" / "public"
 OUT = ROOT / "outputs" / "public_meshes"
-SUFFIXES = (".obj", ".off", ".ply", ".stl", ".glb", ".gltf")
+SUFFIXES = (".obj", ".off", ".ply", ".stl", ".glb", ".gltf", ".npz")
+SIDECARS = (".bin",)  # a .gltf's separate buffers: fetched beside it, not run
 # the folders of each known repository that hold its test meshes (others: every mesh file)
 FOLDERS = {"common-3d-test-models": "data/", "trimesh": "models/", "v-hacd": "app/meshes/"}
 
@@ -83,8 +85,15 @@ def fetch(sources: list[str]) -> None:
         kept = 0
         if git is not None:
             commit = _git(git, "rev-parse", "HEAD").decode().strip()
-            files = [f for f in _git(git, "ls-tree", "-r", "--name-only", "HEAD").decode().splitlines()
-                     if f.startswith(prefix) and Path(f).suffix.lower() in SUFFIXES]
+            listed = [f for f in _git(git, "ls-tree", "-r", "--name-only", "HEAD").decode().splitlines()
+                      if f.startswith(prefix)]
+            files = [f for f in listed if Path(f).suffix.lower() in SUFFIXES]
+            for f in (f for f in listed if Path(f).suffix.lower() in SIDECARS):
+                try:
+                    (out / f).parent.mkdir(parents=True, exist_ok=True)
+                    (out / f).write_bytes(_git(git, "show", f"HEAD:{f}"))
+                except subprocess.CalledProcessError:
+                    pass  # (a sidecar the snapshot left out: its .gltf is refused with the reason)
             absent = []
             for f in files:
                 try:
@@ -102,8 +111,12 @@ def fetch(sources: list[str]) -> None:
                       f"{' ...' if len(absent) > 8 else ''}")
         else:
             commit = None
-            for f in sorted(p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in SUFFIXES):
+            for f in sorted(p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in SUFFIXES + SIDECARS):
                 rel = str(f.relative_to(path))
+                if f.suffix.lower() in SIDECARS:
+                    (out / rel).parent.mkdir(parents=True, exist_ok=True)
+                    (out / rel).write_bytes(f.read_bytes())
+                    continue
                 kept += _keep(manifest, out / rel, f.read_bytes(), name, commit, rel)
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
