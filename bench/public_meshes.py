@@ -7,11 +7,11 @@ resolve`` on each file, one process per call, the way they are typed.
 
 ``fetch`` copies every mesh file (.obj .off .ply .stl .glb .gltf .npz, any case; a .gltf's .bin buffers beside it)
 out of each SOURCE into ``bench/data/public/<name>/`` (ignored by git: the meshes are never copied into the tree) and
-records each file's
-source, commit, path, size and SHA-256 in ``bench/data/public/manifest.json``. A SOURCE is a git repository (a
-clone, or the bare snapshot the library's ``fetch`` brings, read at its HEAD), a plain folder, or a git URL (cloned
-shallow where the network allows). The corpus behind the docs: alecjacobson/common-3d-test-models, mikedh/trimesh
-(``models/``) and kmammou/v-hacd (``app/meshes/``); CGAL's test data is larger than the snapshot limit here.
+records each file's source, commit, path, size and SHA-256 in ``bench/data/public/manifest.json``. A SOURCE is a git
+repository (a clone, or the bare snapshot the library's ``fetch`` brings, read at its HEAD), a plain folder, or a git
+URL (cloned shallow where the network allows). The corpus behind the docs: alecjacobson/common-3d-test-models,
+mikedh/trimesh (``models/``) and kmammou/v-hacd (``app/meshes/``); CGAL's test data is larger than the snapshot limit
+here.
 
 ``run`` calls ``neuralcol check FILE --json`` on every fetched file (at most ``--timeout`` seconds each), then
 ``neuralcol resolve FILE --out DIR --json`` on each colliding one, and judges each output file with a second
