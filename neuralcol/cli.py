@@ -203,7 +203,7 @@ def check_main(args, out: TextIO, err: TextIO) -> int:
 def _write(path: Path, source, vertices: np.ndarray, untouched: bool, overwrite: bool) -> None:
     """The result as ``path``: the input file (a :class:`~neuralcol.geometry.source_mesh.SourceMesh`) with its
     vertex positions replaced, everything else as it was; an untouched input is copied byte for byte."""
-    if untouched:
+    if untouched and not source.sidecars:
         if not (path.exists() and source.path.resolve() == path.resolve()):
             shutil.copyfile(source.path, path)
         return

@@ -218,8 +218,9 @@ def test_gltf_nodes_transforms_and_normals_written_back(tmp_path, suffix):
     assert unchanged.read_bytes() == path.read_bytes()
 
 
-def test_gltf_instances_moved_apart_are_refused_on_writing(tmp_path):
-    """One mesh placed by two nodes: read as two copies; moving them apart cannot be written into the one accessor."""
+def test_gltf_instances_moved_apart_are_written_as_their_own_meshes(tmp_path):
+    """One mesh placed by two nodes: read as two copies; moved alike, written into the one accessor; moved apart, the
+    second node gets its own copy of the mesh with its own positions, and everything reads back as written."""
     v = CUBE.astype(np.float32)
     tris = np.concatenate([QUADS[:, [0, 1, 2]], QUADS[:, [0, 2, 3]]]).astype(np.uint32)
     blob = v.tobytes() + tris.tobytes()
@@ -243,8 +244,13 @@ def test_gltf_instances_moved_apart_are_refused_on_writing(tmp_path):
     moved = mesh.vertices + 0.01  # both instances alike: one accessor holds it
     np.testing.assert_allclose(read_source(mesh.write(tmp_path / "same.glb", moved)).vertices, moved, atol=1e-6)
     moved[0] += 0.1
-    with pytest.raises(MeshFileError, match="instanced by several nodes"):
-        mesh.write(tmp_path / "o.glb", moved)
+    moved[9] -= 0.05
+    out = mesh.write(tmp_path / "o.glb", moved)
+    again = read_source(out)
+    np.testing.assert_array_equal(again.faces, mesh.faces)
+    np.testing.assert_array_equal(again.vertices, mesh.stored(moved))
+    doc = json.loads(out.read_bytes()[20:20 + struct.unpack("<I", out.read_bytes()[12:16])[0]])
+    assert len(doc["meshes"]) == 2 and doc["nodes"][1]["mesh"] == 1 and len(doc["accessors"]) == 3
 
 
 def test_npz_arrays_in_and_out(tmp_path):

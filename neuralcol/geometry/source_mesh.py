@@ -57,6 +57,12 @@ class SourceMesh:
     _state: dict = field(default_factory=dict, repr=False)
 
     @property
+    def sidecars(self) -> bool:
+        """The file refers to files beside it (a .gltf's separate buffers), which a copy must take along."""
+        return self.kind == "gltf" and not self._state["binary"] and any(
+            "uri" in b and not b["uri"].startswith("data:") for b in self._state["doc"].get("buffers", []))
+
+    @property
     def polygons(self) -> bool:
         """Some file face is not a triangle."""
         return len(self.faces) != self.n_file_faces or self.kind == "ply" and self._state.get("strips", False)
@@ -647,7 +653,7 @@ def _read_gltf(path: Path, data: bytes) -> SourceMesh:
         stack += [(c, world) for c in node.get("children", [])]
         if "mesh" not in node:
             continue
-        for prim in doc["meshes"][node["mesh"]]["primitives"]:
+        for pk, prim in enumerate(doc["meshes"][node["mesh"]]["primitives"]):
             mode = prim.get("mode", 4)
             if mode not in (4, 5, 6) or "POSITION" not in prim["attributes"]:
                 continue  # points and lines bound nothing
@@ -666,7 +672,7 @@ def _read_gltf(path: Path, data: bytes) -> SourceMesh:
             tris.append(t + base)
             owner.append(np.full(len(t), len(blocks)))
             blocks.append({"accessor": prim["attributes"]["POSITION"], "normal": prim["attributes"].get("NORMAL"),
-                           "world": world, "start": base, "count": len(local), "tris": t})
+                           "world": world, "start": base, "count": len(local), "tris": t, "node": n, "prim": pk})
     if not blocks:
         raise MeshFileError("no triangle primitive in its scene")
     faces = np.concatenate(tris)
@@ -701,6 +707,7 @@ def _write_gltf(mesh: SourceMesh, v: np.ndarray) -> bytes:
     doc = copy.deepcopy(st["doc"])
     buffers = [bytearray(b) for b in st["buffers"]]
     written: dict[int, np.ndarray] = {}
+    own_mesh: dict[int, int] = {}  # node -> the mesh copy it was given
     for b in st["blocks"]:
         sl = slice(b["start"], b["start"] + b["count"])
         if not (v[sl] != mesh.vertices[sl]).any():
@@ -709,15 +716,27 @@ def _write_gltf(mesh: SourceMesh, v: np.ndarray) -> bytes:
         local = _gltf_local(b, v[sl]).astype(np.float32)
         still = (v[sl] == mesh.vertices[sl]).all(1)
         local[still] = view[still]  # a vertex that did not move keeps its stored value, bit for bit
-        if b["accessor"] in written and not np.array_equal(written[b["accessor"]], local):
-            raise MeshFileError("a mesh instanced by several nodes moved differently in each: write it as OBJ or PLY")
-        written[b["accessor"]] = local
+        position, normal = b["accessor"], b["normal"]
+        if position in written and not np.array_equal(written[position], local):
+            del view  # (a view pins the buffer's size)
+            # a mesh several nodes (or primitives) share, moved differently here: this node gets its own copy of the
+            # mesh, and this primitive its own positions (and normals), appended to the first buffer
+            node = doc["nodes"][b["node"]]
+            if b["node"] not in own_mesh:
+                doc["meshes"].append(copy.deepcopy(doc["meshes"][node["mesh"]]))
+                own_mesh[b["node"]] = node["mesh"] = len(doc["meshes"]) - 1
+            prim = doc["meshes"][node["mesh"]]["primitives"][b["prim"]]
+            position = prim["attributes"]["POSITION"] = _gltf_append(doc, buffers, position)
+            if normal is not None:
+                normal = prim["attributes"]["NORMAL"] = _gltf_append(doc, buffers, normal)
+            view = _gltf_view(doc, buffers, position)
+        written[position] = local
         old = view.astype(np.float64).copy()
         view[:] = local
-        acc = doc["accessors"][b["accessor"]]
+        acc = doc["accessors"][position]
         acc["min"], acc["max"] = local.min(0).tolist(), local.max(0).tolist()
-        if b["normal"] is not None:
-            _gltf_normals(doc, buffers, b, old, local.astype(np.float64))
+        if normal is not None:
+            _gltf_normals(doc, buffers, {**b, "normal": normal}, old, local.astype(np.float64))
     if st["binary"]:
         text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
         text += b" " * (-len(text) % 4)
@@ -733,6 +752,22 @@ def _write_gltf(mesh: SourceMesh, v: np.ndarray) -> bytes:
         elif "uri" in buf:
             st["external"][buf["uri"]] = bytes(buffers[k])
     return json.dumps(doc, indent=2).encode("utf-8")
+
+
+def _gltf_append(doc: dict, buffers: list, index: int) -> int:
+    """A copy of accessor ``index``'s data, tightly packed at the end of the first buffer, as a new accessor; its
+    index."""
+    data = _gltf_view(doc, buffers, index).copy()  # (a copy: a view would pin the buffer's size)
+    buf = buffers[0]
+    buf.extend(b"\0" * (-len(buf) % 4))
+    offset = len(buf)
+    buf.extend(data.tobytes())
+    doc["buffers"][0]["byteLength"] = len(buf)
+    doc["bufferViews"].append({"buffer": 0, "byteOffset": offset, "byteLength": data.nbytes})
+    acc = {k: val for k, val in doc["accessors"][index].items() if k not in ("byteOffset", "sparse")}
+    acc["bufferView"] = len(doc["bufferViews"]) - 1
+    doc["accessors"].append(acc)
+    return len(doc["accessors"]) - 1
 
 
 def _gltf_normals(doc: dict, buffers: list, block: dict, old: np.ndarray, new: np.ndarray) -> None:
