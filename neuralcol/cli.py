@@ -238,6 +238,7 @@ def _resolve_each(vertices: np.ndarray, faces: np.ndarray, rest: np.ndarray, run
 
 def resolve_main(args, out: TextIO, err: TextIO) -> int:
     from neuralcol.api.anymesh import check, resolve_sequence
+    from neuralcol.repair.cap import move_to_depth
 
     inputs = Inputs(args.paths, err, args.rest)
     outdir = Path(args.out)
@@ -308,7 +309,8 @@ def resolve_main(args, out: TextIO, err: TextIO) -> int:
                 continue
             largest = float(np.linalg.norm(result[k] - vertices[k], axis=1).max())
             move = largest / diag
-            ratio = largest / float(pd_b[k]) if pd_b[k] > 0 else None  # the largest move over the input's depth
+            ratio = float(move_to_depth(largest, pd_b[k], diag))  # the largest move over the input's depth
+            ratio = None if np.isnan(ratio) else ratio
             still |= bool(after[k])
             row = {"file": inputs.entries[i].name, "out": str(target), "collides_before": bool(before[k]),
                    "collides_after": bool(after[k]), "pd_before": float(pd_b[k]), "pd_after": float(pd_a[k]),

@@ -315,3 +315,10 @@ def test_repair_of_a_large_mesh_counts_its_exact_checks(monkeypatch):
     counted = meshes.repair(v[None], f, lab, progress=True)
     np.testing.assert_array_equal(counted.vertices, plain.vertices)
     assert counts and counts[0] >= 3, "every exact check counted (the input's label, the repair's, the result's)"
+
+
+def test_move_to_depth_is_not_given_for_depths_at_round_off():
+    from neuralcol.repair.cap import move_to_depth
+
+    out = move_to_depth([0.5, 0.5, 0.5, 0.0], [0.25, 1e-12, -0.1, 0.0], diagonal=10.0)
+    assert out[0] == 2.0 and np.isnan(out[1:]).all()

@@ -114,8 +114,9 @@ class Resolved(NamedTuple):
         """(N,) each colliding input's largest vertex move over its exact PD (NaN for free inputs and code inputs): how
         many times the depth of the input's deepest penetration the repair moved a vertex. About 0.5 when the two sides
         of the deepest contact each moved half of it, 1 when one side moved all of it; much larger means it moved the
-        wrong part, or too much of it."""
-        pd = np.asarray(self.pd_input, np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(pd > 0, np.asarray(self.displacement_max, np.float64) / pd, np.nan)
+        wrong part, or too much of it. NaN too where the depth is below 1e-9 of the diagonal (a contact at round-off:
+        :func:`~neuralcol.repair.cap.move_to_depth`)."""
+        from neuralcol.repair.cap import move_to_depth
+
+        return move_to_depth(self.displacement_max, self.pd_input, self.diagonal)
 

@@ -80,3 +80,16 @@ def cap_freed(x: np.ndarray, out: np.ndarray, pd_in: np.ndarray, pd_v: np.ndarra
         moved = cap[rows] < 1
         out[rows], pd_v[rows[moved]] = kept, pd_c[moved]
     return cap
+
+
+# an input's depth below this share of its diagonal is a contact at round-off (a sliver crossing, a CAD seam): the move
+# over it says nothing (1e12 and more), so it is not given
+DEPTH_FLOOR = 1e-9
+
+
+def move_to_depth(largest_move, pd_input, diagonal: float) -> np.ndarray:
+    """Each input's largest vertex move over its exact PD: NaN where the input is free, or its depth is below
+    :data:`DEPTH_FLOOR` of the diagonal."""
+    pd = np.asarray(pd_input, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(pd > DEPTH_FLOOR * float(diagonal), np.asarray(largest_move, np.float64) / pd, np.nan)

@@ -93,8 +93,9 @@ class Repaired(NamedTuple):
     def move_to_depth(self) -> np.ndarray:
         """(B,) the largest move over the input's exact PD (NaN for free inputs; see
         :attr:`neuralcol.api.Resolved.move_to_depth`)."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(self.pd_input > 0, self.largest_move / self.pd_input, np.nan)
+        from neuralcol.repair.cap import move_to_depth
+
+        return move_to_depth(self.largest_move, self.pd_input, self.diagonal)
 
 
 # a mesh with this many faces or more takes seconds per exact check: with ``progress``, its checks are counted on
