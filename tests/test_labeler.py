@@ -359,3 +359,44 @@ def test_label_without_clearance_is_the_full_label_where_it_collides(scape_np):
     assert lean._near is None, "the labeler without clearance never builds the rest mesh's near table"
     at_rest = ExactLabeler(lab.faces, lab.rest)
     assert lean.label(lab.rest).pd == pytest.approx(at_rest.label(lab.rest).pd, rel=1e-14, abs=0)
+
+
+def test_large_mesh_checks_follow_the_moved_region_and_match_whole_checks():
+    """On a mesh of INCREMENTAL_FACES faces or more, consecutive checks find the pairs again only where the mesh moved;
+    along a sequence of local moves (and a whole-mesh one), the pairs and the penetrations equal a fresh labeler's
+    whole-mesh check, and the labels too."""
+    from neuralcol.collision import labeler as L
+
+    s = trimesh.creation.icosphere(subdivisions=6)  # 81 920 faces
+    v0, f = np.asarray(s.vertices, np.float64), np.asarray(s.faces, np.int64)
+    assert len(f) >= L.INCREMENTAL_FACES
+    lab = ExactLabeler(f, v0, clearance=False)
+    rng = np.random.default_rng(0)
+    v = v0.copy()
+    cap = v[:, 2] > 0.9
+    v[cap, 2] -= 0.25  # the north cap pushed through: a colliding start
+    seen, modes = [], []
+    for step in range(6):
+        if step == 4:
+            v = v + rng.normal(scale=1e-3, size=v.shape)  # everything moves: a whole check again
+        else:
+            centre = v[rng.integers(len(v))]
+            near = np.linalg.norm(v - centre, axis=1) < 0.15
+            v = v.copy()
+            v[near] += rng.normal(scale=0.02, size=(near.sum(), 3))
+        fresh = ExactLabeler(f, v0, clearance=False)
+        full = fresh.candidate_pairs(v)
+        full = full[L.counted_mask(v, f, full, 1.0, 0.0)]
+        full = full[np.lexsort((full[:, 1], full[:, 0]))]
+        got = lab.intersecting_pairs(v)
+        modes.append(lab._last_mode)
+        np.testing.assert_array_equal(got, full)
+        a, b = lab.penetrations(v), fresh.penetrations(v)
+        assert a.n_pairs == b.n_pairs == len(full)
+        np.testing.assert_array_equal(a.depth, b.depth)
+        np.testing.assert_array_equal(a.crossing_pairs, b.crossing_pairs)
+        la, lb = lab.label(v), fresh.label(v)
+        assert (la.collides, la.n_pairs, la.pd) == (lb.collides, lb.n_pairs, lb.pd)
+        seen.append(len(full))
+    assert max(seen) > 0
+    assert modes == ["whole", "moved", "moved", "moved", "whole", "moved"], modes

@@ -138,6 +138,11 @@ def gap_roundoff(vertices: np.ndarray) -> float:
     return float(GAP_ROUNDOFF * np.abs(vertices).max()) if vertices.size else 0.0
 
 
+# On meshes of this many faces or more, the counted pairs are found again only where the mesh moved since the last
+# check (ExactLabeler._counted_pairs), unless more than this share of its triangles moved.
+INCREMENTAL_FACES = 20_000
+INCREMENTAL_SHARE = 0.25
+
 # The definition of the labels, part of the label caches' key (neuralcol.samples.cache): 2 = exact verdicts
 # (orientation predicates; coplanar overlaps count; touch_tol 0 by default).
 LABEL_VERSION = 2
@@ -445,8 +450,45 @@ class ExactLabeler(MeshByMesh):
     def intersecting_pairs(self, vertices) -> np.ndarray:
         """All counted intersecting triangle pairs, (P, 2) int64 sorted."""
         v = self._check(vertices)
+        if len(self.faces) >= INCREMENTAL_FACES:
+            return self._counted_pairs(v)
         pairs = self.candidate_pairs(v)
         return pairs[counted_mask(v, self.faces, pairs, self._scale(), self.tau)]
+
+    def _counted_pairs(self, v: np.ndarray) -> np.ndarray:
+        """The counted pairs of a large mesh, in lexicographic order, found again only where the mesh moved since the
+        last call: a pair of two triangles that did not move keeps its verdict, and the pairs with a moved triangle
+        are among the triangles whose boxes overlap the moved ones' bounding box. The repairs check a mesh hundreds of
+        times while moving a small part of it; each check then costs the moved region, not the mesh (the same pairs
+        as a whole-mesh check, tested)."""
+        f = self.faces
+        lo, hi = triangle_aabbs(v, f, 0.0)
+        last = getattr(self, "_last_pairs", None)
+        moved = None
+        if last is not None and last[0].shape == v.shape:
+            moved_v = (v != last[0]).any(1)
+            moved = moved_v[f].any(1)
+            if moved.sum() > INCREMENTAL_SHARE * len(f):
+                moved = None  # most of the mesh moved (or another mesh): check it whole
+        self._last_mode = "whole" if moved is None else ("same" if not moved.any() else "moved")
+        if moved is None:
+            pairs = drop_adjacent(f, grid_pairs(lo, hi, self.cell))
+            pairs = pairs[counted_mask(v, f, pairs, self._scale(), self.tau)]
+        elif not moved.any():
+            pairs = last[1]
+        else:
+            old = last[1]
+            keep = old[~moved[old].any(1)] if len(old) else old
+            mlo, mhi = lo[moved].min(0), hi[moved].max(0)
+            sub = np.flatnonzero((hi >= mlo).all(1) & (lo <= mhi).all(1))
+            near = sub[grid_pairs(lo[sub], hi[sub], self.cell)]
+            near = near[moved[near].any(1)]
+            near = drop_adjacent(f, np.sort(near, axis=1))
+            pairs = np.concatenate([keep, near[counted_mask(v, f, near, self._scale(), self.tau)]])
+        pairs = np.sort(np.asarray(pairs, np.int64).reshape(-1, 2), axis=1)
+        pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+        self._last_pairs = (v.copy(), pairs)
+        return pairs
 
     def closed_rule_pairs(self, vertices) -> np.ndarray:
         """The intersecting pairs (P, 2) int64 sorted under CGAL's closed rule (touching counts, edge neighbours
@@ -532,7 +574,8 @@ class ExactLabeler(MeshByMesh):
         """The counted pairs and their crossing records, from the pairs whose boxes overlap (no clearance term):
         n_pairs, rec_key, rec_int, n_rec and the per-part pair-depth floors."""
         floor = np.zeros(self.n_parts)
-        n_pairs, rec_key, rec_int, n_rec = counted_pass(v, self.faces, self.candidate_pairs(v), self.ell, self.tau,
+        pairs = self._counted_pairs(v) if len(self.faces) >= INCREMENTAL_FACES else self.candidate_pairs(v)
+        n_pairs, rec_key, rec_int, n_rec = counted_pass(v, self.faces, pairs, self.ell, self.tau,
                                                         self.partition, floor, self.adj_ptr, self.adj_idx,
                                                         self.adj_eid, self.orient)
         return n_pairs, rec_key, rec_int, n_rec, floor
@@ -593,6 +636,7 @@ class ExactLabeler(MeshByMesh):
         state = dict(self.__dict__)
         state.pop("_scratch", None)
         state.pop("_corners", None)
+        state.pop("_last_pairs", None)
         return state
 
     def _far_pass(self, v, lo0, hi0, lo_cap, hi_cap, axes, gerr, clear, floor, rec_key, rec_int, n_rec):
