@@ -367,7 +367,7 @@ def test_large_mesh_checks_follow_the_moved_region_and_match_whole_checks():
     whole-mesh check, and the labels too."""
     from neuralcol.collision import labeler as L
 
-    s = trimesh.creation.icosphere(subdivisions=6)  # 81 920 faces
+    s = trimesh.creation.icosphere(subdivisions=5)  # 20 480 faces
     v0, f = np.asarray(s.vertices, np.float64), np.asarray(s.faces, np.int64)
     assert len(f) >= L.INCREMENTAL_FACES
     lab = ExactLabeler(f, v0, clearance=False)
