@@ -38,7 +38,11 @@ def edge_topology(faces: np.ndarray) -> EdgeTopology:
     faces = np.asarray(faces, dtype=np.int64)
     half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=-1).reshape(-1, 2)  # (3F, 2)
     half = np.sort(half, axis=1)
-    edges, inverse, counts = np.unique(half, axis=0, return_inverse=True, return_counts=True)
+    # one int64 key per edge, low * n + high: its numeric order is the rows' lexicographic order, and a 1-D unique is
+    # several times faster than np.unique(axis=0) (100 k faces: 0.19 -> 0.03 s)
+    n = int(faces.max()) + 1 if faces.size else 1
+    keys, inverse, counts = np.unique(half[:, 0] * n + half[:, 1], return_inverse=True, return_counts=True)
+    edges = np.stack([keys // n, keys % n], axis=1)
     return EdgeTopology(edges, counts.astype(np.int64), inverse.reshape(-1, 3).astype(np.int64))
 
 
