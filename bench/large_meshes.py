@@ -22,20 +22,11 @@ import numpy as np
 
 from bench.context import HERE, ROOT, BenchContext
 from bench.labeler_contenders import single_thread
-from bench.timing import ratio, summarize
+from bench.timing import ratio, repeat, summarize
 
 PUBLIC = HERE / "data" / "public"
 MESHES = {"100k": "common-3d-test-models/data/nefertiti.obj", "124k_colliding": "common-3d-test-models/data/ogre.obj",
           "1m": "common-3d-test-models/data/igea.ply"}
-
-
-def _timed(fn, reps: int) -> list[float]:
-    out = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        fn()
-        out.append(time.perf_counter() - t0)
-    return out
 
 
 def _mesh(key: str):
@@ -64,9 +55,8 @@ def measure(ctx: BenchContext) -> dict:
     b.apply_translation([1.5, 0.0, 0.0])
     trimesh.util.concatenate([a, b]).export(small)
     cmd = [sys.executable, "-m", "neuralcol.cli", "check", str(small)]
-    subprocess.run(cmd, capture_output=True, cwd=ROOT)  # warm the file caches
-    out["check_startup_small_s"] = summarize(_timed(lambda: subprocess.run(cmd, capture_output=True, cwd=ROOT),
-                                                    3 if ctx.quick else 5))
+    out["check_startup_small_s"] = summarize(repeat(lambda: subprocess.run(cmd, capture_output=True, cwd=ROOT),
+                                                    3 if ctx.quick else 5))  # (one untimed call warms the caches)
     try:
         from CGAL import CGAL_Polygon_mesh_processing  # noqa: F401
         cgal = True
@@ -90,12 +80,12 @@ def measure_mesh(key: str, v: np.ndarray, f: np.ndarray, reps: int, cgal: bool, 
     out = {}
     ExactLabeler(f[:64], v).verdict(v)  # compile / load the kernels outside the timing
     with single_thread():
-        setup = _timed(lambda: ExactLabeler(f, v, clearance=False), reps)
+        setup = repeat(lambda: ExactLabeler(f, v, clearance=False), reps, warmup=0)
         lab = ExactLabeler(f, v, clearance=False)
-        verdict = _timed(lambda: lab.verdict(v), reps)
+        verdict = repeat(lambda: lab.verdict(v), reps, warmup=0)
         # a fresh labeler each time: a large mesh's labeler keeps its last pairs for the next check of a moved mesh,
         # which would make a repeated label of the same mesh free
-        label = _timed(lambda: ExactLabeler(f, v, clearance=False).label(v), reps)
+        label = repeat(lambda: ExactLabeler(f, v, clearance=False).label(v), reps, warmup=0)
         collides = bool(lab.verdict(v))
         out[f"large_{key}_ours_verdict_s"] = summarize([s + t for s, t in zip(setup, verdict)])
         out[f"large_{key}_ours_label_s"] = summarize(label)
@@ -106,7 +96,7 @@ def measure_mesh(key: str, v: np.ndarray, f: np.ndarray, reps: int, cgal: bool, 
 
             check = ipctk_check(v, f, v[None])
             check(0)  # (its first call sets up its broad phase)
-            out[f"large_{key}_ipctk_has_intersections_s"] = summarize(_timed(lambda: check(0), reps))
+            out[f"large_{key}_ipctk_has_intersections_s"] = summarize(repeat(lambda: check(0), reps, warmup=0))
             out[f"large_{key}_verdict_vs_ipctk"] = ratio(out[f"large_{key}_ours_verdict_s"],
                                                          out[f"large_{key}_ipctk_has_intersections_s"])
         except ImportError:
@@ -122,9 +112,9 @@ def measure_mesh(key: str, v: np.ndarray, f: np.ndarray, reps: int, cgal: bool, 
         notes.append(f"{key}: CGAL Polyhedron_3 built in {time.perf_counter() - t0:.1f} s (not timed)")
         fns = cgal_checks(meshes)
         out[f"large_{key}_cgal_does_self_intersect_s"] = summarize(
-            _timed(lambda: fns["cgal_does_self_intersect"](0), reps))
+            repeat(lambda: fns["cgal_does_self_intersect"](0), reps, warmup=0))
         out[f"large_{key}_cgal_self_intersections_s"] = summarize(
-            _timed(lambda: fns["cgal_self_intersections"](0), reps))
+            repeat(lambda: fns["cgal_self_intersections"](0), reps, warmup=0))
     out[f"large_{key}_verdict_vs_cgal"] = ratio(out[f"large_{key}_ours_verdict_s"],
                                                  out[f"large_{key}_cgal_does_self_intersect_s"])
     out[f"large_{key}_label_vs_cgal_pairs"] = ratio(out[f"large_{key}_ours_label_s"],

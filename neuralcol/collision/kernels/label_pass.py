@@ -9,7 +9,6 @@ from numba import njit
 
 from neuralcol.collision.kernels.broadphase import shared_vertex_count, sorted_cells
 from neuralcol.collision.kernels.pair_terms import (
-    add_crossings,
     contact_depth,
     count_pair,
     is_counted,
@@ -115,12 +114,8 @@ def pair_pass(verts, faces, pairs, scale, tau, gerr, cap, part, clear, floor, ad
         if not counted:
             continue  # apart, touching, or touching within tau: no crossing edges
         n_pairs += 1
-        for t in (a, b):
-            for i in range(3):
-                pi = part[faces[t, i]]
-                floor[pi] = max(floor[pi], pen)
-        rec_key, rec_int, n_rec = add_crossings(verts, faces, a, b, adj_ptr, adj_idx, adj_eid, orient,
-                                                rec_key, rec_int, n_rec)
+        rec_key, rec_int, n_rec = count_pair(verts, faces, a, b, pen, part, floor, adj_ptr, adj_idx, adj_eid, orient,
+                                             rec_key, rec_int, n_rec)
     return n_pairs, rec_key, rec_int, n_rec
 
 
