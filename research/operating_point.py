@@ -2,7 +2,7 @@
 
 For each run directory: the detector's logits on the cascade's calibration set (``cascade.npz``), on the U(Z) test
 set (``test_predictions.npz``) and on the realistic set (``realistic_predictions.npz``, clear cases). The threshold
-whose calibration FNR is at most ``--fnr`` (:func:`~neuralcol.metrics.detection.fnr_threshold`, what
+whose calibration FNR is at most ``--fnr`` (:func:`~neuralcol.operating.fnr_threshold`, what
 ``detector.operating_fnr`` folds into a detector) is applied to the test sets, beside logit 0. It separates the
 operating point's share of a gain from the inputs' share (rule v2, docs/studies/one_detector.md).
 
@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from neuralcol.metrics.detection import detection_metrics, fnr_threshold
+from neuralcol.metrics.detection import detection_metrics
+from neuralcol.operating import fnr_threshold
 
 
 def score(run_dir: Path, target: float) -> dict:

@@ -23,7 +23,8 @@ import numpy as np
 import torch
 
 from neuralcol.api.run import load_run
-from neuralcol.metrics.detection import detection_metrics, fnr_threshold, mean_fnr_threshold
+from neuralcol.metrics.detection import detection_metrics
+from neuralcol.operating import fnr_threshold, mean_fnr_threshold
 from neuralcol.samples.store import CollisionStore, Origin
 
 RULES = ("realistic", "calibration", "both")

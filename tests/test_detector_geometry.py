@@ -326,7 +326,7 @@ def test_features_of_the_few_vertices_equal_those_of_the_whole_mesh():
 
 
 def test_mean_fnr_threshold_is_the_largest_threshold_whose_mean_fnr_meets_the_target():
-    from neuralcol.metrics.detection import fnr_threshold, mean_fnr_threshold
+    from neuralcol.operating import fnr_threshold, mean_fnr_threshold
 
     rng = np.random.default_rng(5)
     ya, yb = rng.random(300) < 0.5, rng.random(40) < 0.4
@@ -346,7 +346,7 @@ def test_mean_fnr_threshold_is_the_largest_threshold_whose_mean_fnr_meets_the_ta
 
 
 def test_fnr_threshold_misses_at_most_the_target_and_the_shift_moves_the_decision():
-    from neuralcol.metrics.detection import fnr_threshold
+    from neuralcol.operating import fnr_threshold
 
     rng = np.random.default_rng(4)
     y = rng.random(400) < 0.4
@@ -494,7 +494,7 @@ def test_operating_point_on_a_realistic_calibration_set(tmp_path):
     detect(mesh) judges them (their codes and their own pair features), and folded into the bias; without the set,
     one clear error."""
     from neuralcol.errors import UserInputError
-    from neuralcol.metrics.detection import fnr_threshold
+    from neuralcol.operating import fnr_threshold
     from neuralcol.samples.store import CollisionRows
     from neuralcol.stages.detector import mesh_logits, operating_point
 

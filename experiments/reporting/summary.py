@@ -8,9 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-OPERATING_SETS = {"realistic": "realistic calibration meshes", "calibration": "U(Z) calibration codes",
-                  "both": "realistic calibration meshes and U(Z) calibration codes",
-                  "realistic_calibration": "realistic calibration meshes apart from D_c"}
+from neuralcol.operating import SET_NAMES
 
 
 def _interval(ci) -> str:
@@ -33,7 +31,7 @@ def operating_point_line(op: dict) -> str:
     95 % interval)."""
     cal = op["calibration"]
     n_pos = cal.get("n_colliding")
-    size = f"{cal['n']} {OPERATING_SETS.get(op['operating_set'], op['operating_set'])}" + (
+    size = f"{cal['n']} {SET_NAMES.get(op['operating_set'], op['operating_set'])}" + (
         f" ({n_pos} colliding)" if n_pos is not None else "")
     return (f"  (the operating point, for meshes you bring: logit > {op['threshold']:.3f}, set to FNR <= "
             f"{op['operating_fnr']:g} on {size}: FNR {cal['fnr']:.3f}{_interval(cal.get('fnr_ci95'))} there)")

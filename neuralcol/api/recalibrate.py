@@ -7,7 +7,7 @@ module draws the realistic calibration set and the realistic test set as a run o
 asked, moves the threshold to where the rule puts it (FNR <= target on the calibration set's clear colliding
 meshes) and writes what depends on it:
 
-* ``detector.pt``: the output bias shifted (:meth:`~neuralcol.nn.detector.CollisionDetector.shift_decision`), so
+* ``detector.pt``: the output bias shifted (:func:`neuralcol.operating.fold_into_file`), so
   ``detect``, ``resolve``, the handler and the cascade decide at the new threshold;
 * ``cascade.npz``: the calibration logits shifted by as much (the cascade's bands are chosen on them at load);
 * ``metrics.json``: ``detector.operating_point`` (the new one, with ``previous`` and ``recalibrated``), the last
@@ -32,7 +32,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from neuralcol.errors import UserInputError
 from neuralcol.rundir import RunDir
-from neuralcol.utils.files import atomic_path, write_json_atomic
+from neuralcol.utils.files import write_json_atomic
 
 #: seed of the fresh U(Z) codes that score a package's operating point (a package has no test set of its own)
 UZ_SEED = 20261129
@@ -89,22 +89,10 @@ def rule_sets(run_dir: str | Path, cfg: DictConfig, realistic: dict) -> RuleSets
     return RuleSets(cal, (meshes.vertices[keep], pd[keep] > 0), realistic)
 
 
-def _score(logit: np.ndarray, y: np.ndarray, t: float) -> dict:
-    from neuralcol.metrics.detection import detection_metrics, fnr_interval
-
-    m = detection_metrics(logit > t, y)
-    maj = float(max(y.mean(), 1 - y.mean())) if len(y) else float("nan")
-    m.setdefault("skill", (m["accuracy"] - maj) / (1 - maj) if maj < 1 else float("nan"))
-    ci = fnr_interval(logit > t, y)
-    return {**{k: m[k] for k in ("accuracy", "fnr", "fpr", "balanced_accuracy", "base_rate", "majority_accuracy",
-                                  "skill") if k in m},
-            "n": int(len(y)), "n_colliding": int(y.sum()), "fnr_ci95": None if ci is None else list(ci)}
-
-
 def measure(run, sets: RuleSets, target: float) -> dict:
     """The run's detector on both sets: its own threshold and the rule's (FNR <= ``target`` on the calibration
     set), each scored on both; ``shift`` is the rule's threshold in the run's current logits."""
-    from neuralcol.metrics.detection import fnr_threshold
+    from neuralcol.operating import fnr_threshold, score
 
     logits = {name: run.detect(v).logit.double().numpy() for name, (v, _) in
               (("calibration", sets.calibration), ("test", sets.test))}
@@ -113,8 +101,8 @@ def measure(run, sets: RuleSets, target: float) -> dict:
     op = run.metrics["detector"].get("operating_point") or {}
     base = float(op.get("threshold", 0.0))
     return {"target": float(target), "shift": shift,
-            "current": {"threshold": base, **{k: _score(logits[k], ys[k], 0.0) for k in logits}},
-            "rule": {"threshold": base + shift, **{k: _score(logits[k], ys[k], shift) for k in logits}}}
+            "current": {"threshold": base, **{k: score(logits[k], ys[k], 0.0) for k in logits}},
+            "rule": {"threshold": base + shift, **{k: score(logits[k], ys[k], shift) for k in logits}}}
 
 
 def _uz_at(run, shift: float, fresh) -> dict:
@@ -153,32 +141,18 @@ def _handler_at_new_threshold(run, fresh, n: int) -> dict:
     return {**m, "inputs": {"n": int(len(pick)), "fresh_seed": UZ_SEED}}
 
 
-def shift_saved_decision(path: Path, shift: float) -> None:
-    """``detector.pt`` with its decision threshold moved to ``logit = shift`` (MLP_c's output bias minus ``shift``,
-    as :meth:`~neuralcol.nn.detector.CollisionDetector.shift_decision` does); everything else in the file as it was."""
-    from neuralcol.nn.detector import load_detector
-    from neuralcol.utils.safe_files import read_torch_file
-
-    net, _ = load_detector(path)
-    bias = net.mlp_c[-1].bias
-    name = next(k for k, p in net.named_parameters() if p is bias)
-    blob = read_torch_file(path, "cpu")
-    blob["state"][name] = blob["state"][name] - float(shift)
-    with atomic_path(path) as tmp:
-        torch.save(blob, tmp)
-
-
 def write_recalibration(run, result: dict, sets: RuleSets, n_fresh: int = 10000, n_handler: int = 500) -> dict:
     """Move ``run``'s threshold to ``result["rule"]`` (from :func:`measure`) and rewrite the files that depend on it
     (see the module's docstring). Returns the new ``detector.operating_point``."""
     from neuralcol.api.package import documented_figures, fresh_labels, sha256
+    from neuralcol.operating import fold_into_file
     from neuralcol.stages.cascade import load_calibration, save_calibration
 
     rd = RunDir(run.run_dir)
     shift = float(result["shift"])
     fresh = fresh_labels(run, n_fresh, UZ_SEED)
     uz = _uz_at(run, shift, fresh)
-    shift_saved_decision(rd.detector, shift)
+    fold_into_file(rd.detector, shift)
     if rd.cascade.is_file():
         logits, collides = load_calibration(rd.cascade)
         with np.load(rd.cascade) as z:

@@ -135,12 +135,17 @@ class CollisionDetector(nn.Module):
     def latent_dim(self) -> int:
         return self.n_components * (1 + self.level2_dim)
 
+    @property
+    def output_bias(self) -> torch.nn.Parameter:
+        """MLP_c's output bias, where the operating threshold is folded (:mod:`neuralcol.operating`)."""
+        return self.mlp_c[-1].bias
+
     @torch.no_grad()
     def shift_decision(self, threshold: float) -> None:
         """Move the decision threshold to ``logit = threshold``: MLP_c's output bias minus ``threshold``, so that
         ``logit > 0`` (and p > 0.5, the handler's constraint, the cascade's bands) afterwards means what
-        ``logit > threshold`` meant before (the operating point, ``detector.operating_fnr``)."""
-        self.mlp_c[-1].bias -= float(threshold)
+        ``logit > threshold`` meant before (the operating point, :func:`neuralcol.operating.fold_into`)."""
+        self.output_bias.sub_(float(threshold))
 
     def split(self, z_all: torch.Tensor) -> torch.Tensor:
         """(B, D) -> per-sub-domain inputs (B, K, 1 + d): [z0_i, Z_i]."""

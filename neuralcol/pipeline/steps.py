@@ -28,6 +28,7 @@ from neuralcol.handler.resolve import alm_settings
 from neuralcol.metrics.cascade import Band
 from neuralcol.metrics.plots import partition_colors, render_mesh_png
 from neuralcol.nn.part_geometry import DetectorOnCodes, detector_inputs
+from neuralcol.operating import needs_calibration_meshes
 from neuralcol.pipeline.context import LatentStage, RunContext
 from neuralcol.repair.settings import repair_from_config
 from neuralcol.rundir import RunDir
@@ -216,8 +217,7 @@ def detector(cfg: DictConfig, data: DataResult, sampling: Sampling, run_dir, log
         real_rows = realistic_rows(s.latent.space, ds.vertices.numpy(), feats.features.numpy(), feats.acap,
                                    report["train_index"], s.pool, det.geometry.train_set, s.samples_dir, eps)
     cal_meshes = None
-    if det.get("operating_fnr") is not None and cfg.realistic.enabled \
-            and det.get("operating_set") in ("auto", "realistic_calibration"):
+    if needs_calibration_meshes(det, cfg.realistic.enabled):
         # the realistic calibration set: drawn like the test set with its own seed, its held-out meshes left out
         cal_meshes = calibration_meshes(ds.vertices.numpy(), feats.features.numpy(), feats.acap, report["val_index"],
                                         s.pool, cfg.realistic, s.samples_dir, eps)

@@ -10,9 +10,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from neuralcol.collision.backends import labeler_problems
 from neuralcol.errors import UserInputError
+from neuralcol.operating import config_problems as operating_problems
 from neuralcol.samples.realistic import LABEL_CLEARANCES
 from neuralcol.stages.cascade import cascade_problems
-from neuralcol.stages.detector import METHODS, OPERATING_SETS
+from neuralcol.stages.detector import METHODS
 from neuralcol.stages.model_size import validate_model_size
 from neuralcol.stages.speed import speed_accuracy_problems
 
@@ -58,23 +59,9 @@ def config_problems(cfg: DictConfig) -> list[str]:
     need("labeling.labeler.touch_tol", lambda v: float(v) >= 0, "must be >= 0")
     if _get(cfg, "detector.inputs") is not None:  # the detector over code and mesh
         need("detector.inputs", lambda v: v in ("latent", "code_and_mesh"), "use latent or code_and_mesh")
-    if _get(cfg, "detector.operating_fnr") is not None:
-        need("detector.operating_fnr", lambda v: 0 <= float(v) < 1, "must lie in [0, 1) (null: the paper's p > 0.5)")
     if _get(cfg, "realistic.label_clearance") is not None:
         need("realistic.label_clearance", lambda v: v in LABEL_CLEARANCES, f"use {' or '.join(LABEL_CLEARANCES)}")
-    if _get(cfg, "detector.operating_set") is not None:
-        need("detector.operating_set", lambda v: v in OPERATING_SETS,
-             f"use {', '.join(OPERATING_SETS[:-1])} or {OPERATING_SETS[-1]}")
-        if _get(cfg, "detector.operating_set") == "realistic_calibration" \
-                and _get(cfg, "detector.operating_fnr") is not None and not _get(cfg, "realistic.enabled"):
-            problems.append("detector.operating_set='realistic_calibration': needs realistic.enabled=true (its "
-                            "calibration set is drawn like the realistic set); use detector.operating_set=calibration")
-        where = _get(cfg, "detector.operating_set")
-        if where in ("realistic", "both") and _get(cfg, "detector.operating_fnr") is not None \
-                and _get(cfg, "detector.inputs") != "code_and_mesh":
-            problems.append(f"detector.operating_set={where!r}: needs "
-                            "detector.inputs=code_and_mesh (the realistic "
-                            "training meshes are rows of its D_c only); use detector.operating_set=calibration")
+    problems += operating_problems(lambda key: _get(cfg, key))
     if _get(cfg, "detector.inputs") == "code_and_mesh":
         for key in ("detector.geometry.per_part", "detector.geometry.select_codes", "detector.geometry.hidden"):
             need(key, lambda v: is_int(v) and v >= 1, "must be an integer >= 1")

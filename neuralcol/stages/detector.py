@@ -22,10 +22,11 @@ import numpy as np
 import torch
 from hydra.utils import instantiate
 
+from neuralcol import operating
 from neuralcol.active.rounds import Schedule
 from neuralcol.errors import UserInputError
 from neuralcol.lit.detector import DetectorLitModule, detector_module
-from neuralcol.metrics.detection import detection_metrics, fnr_interval, fnr_threshold, mean_fnr_threshold
+from neuralcol.metrics.detection import detection_metrics
 from neuralcol.metrics.tensorboard import log_round_examples
 from neuralcol.nn.detector import CollisionDetector, build_detector, load_detector, net_widths, save_detector
 from neuralcol.nn.inference import batched_logits
@@ -49,7 +50,6 @@ from neuralcol.utils.progress import trainer_progress
 from neuralcol.utils.safe_files import numpy_values_allowed, read_torch_file
 
 METHODS = ("supv", "supv_bd", "active", "active_paper")  # method.name
-OPERATING_SETS = ("auto", "calibration", "realistic", "both", "realistic_calibration")  # detector.operating_set
 
 
 def evaluate_on_test(module: DetectorLitModule, test: CollisionRows) -> dict:
@@ -131,19 +131,21 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
                     store: CollisionStore | None = None, calibration_meshes=None) -> dict | None:
     """Set the final detector's decision threshold (``detector.operating_fnr``; None: the paper's p > 0.5).
 
-    On the labeled rows of ``detector.operating_set`` the largest logit threshold whose FNR is at most
-    ``operating_fnr`` is found (:func:`~neuralcol.metrics.detection.fnr_threshold`) and folded into MLP_c's output
-    bias, so every user of the detector (handler, cascade, ``detect``) decides at it:
+    The rule lives in :mod:`neuralcol.operating`: on the labeled rows of ``detector.operating_set``
+    (:func:`~neuralcol.operating.choose_set`) the largest logit threshold whose FNR is at most ``operating_fnr``
+    (:func:`~neuralcol.operating.threshold_for`) is folded into MLP_c's output bias
+    (:func:`~neuralcol.operating.fold_into`), so every user of the detector (handler, cascade, ``detect``) decides
+    at it. The sets:
 
-    * ``calibration`` (default): the cascade's calibration set, uniform codes of U(Z) labeled once and cached, apart
-      from the test set and D_c;
-    * ``realistic``: the realistic training meshes among D_c's validation rows (never trained on; a detector over
-      code and mesh with ``geometry.realistic_rows``), judged by their own geometry: real meshes' operating point;
-    * ``both``: the realistic validation rows and the calibration set, the **mean** of their two FNRs at most
-      ``operating_fnr`` (each set weighs the same; :func:`~neuralcol.metrics.detection.mean_fnr_threshold`);
     * ``realistic_calibration``: ``calibration_meshes`` ``(vertices (C, V, 3), collides (C,))``, a realistic set
       apart from D_c drawn like the realistic test set
       (:func:`~neuralcol.samples.realistic.calibration_meshes`), judged as ``detect(mesh)`` judges a mesh;
+    * ``realistic``: the realistic training meshes among D_c's validation rows (never trained on; a detector over
+      code and mesh with ``geometry.realistic_rows``), judged by their own geometry;
+    * ``calibration``: the cascade's calibration set, uniform codes of U(Z) labeled once and cached, apart from the
+      test set and D_c;
+    * ``both``: the realistic validation rows and the calibration set, the **mean** of their two FNRs at most
+      ``operating_fnr`` (each set weighs the same);
     * ``auto``: ``realistic_calibration`` where ``calibration_meshes`` are given (a run with the realistic stage),
       else ``realistic`` where D_c holds such rows, else ``calibration``.
 
@@ -159,16 +161,15 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
     if target is None:
         return None
     on_codes = DetectorOnCodes(net, space)
-    where = str(det.get("operating_set", "calibration"))
-    if where not in OPERATING_SETS:
-        raise UserInputError(f"detector.operating_set={where!r}; use one of {', '.join(OPERATING_SETS)}")
+    asked = str(det.get("operating_set", "calibration"))
+    if asked not in operating.OPERATING_SETS:
+        raise UserInputError(f"detector.operating_set={asked!r}; use one of {', '.join(operating.OPERATING_SETS)}")
     rows = None
-    if store is not None and where in ("realistic", "auto", "both"):  # only the realistic validation rows are read
+    if store is not None and asked in ("realistic", "auto", "both"):  # only the realistic validation rows are read
         rows = store.read_rows((store.column("origin") == Origin.REALISTIC) & store.split_mask())
     found = rows is not None and rows.geometry is not None and len(rows.z) > 0
-    if where == "auto":  # the realistic calibration set, else D_c's realistic rows, else the calibration codes
-        has_meshes = calibration_meshes is not None and len(calibration_meshes[0]) > 0
-        where = "realistic_calibration" if has_meshes else "realistic" if found else "calibration"
+    has_meshes = calibration_meshes is not None and len(calibration_meshes[0]) > 0
+    where = operating.choose_set(asked, has_meshes, found)
     sets = []
     if where in ("realistic", "both"):
         if not found:
@@ -178,7 +179,7 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
         logit = batched_logits(net, torch.as_tensor(rows.z), torch.as_tensor(rows.geometry), batch=None).numpy()
         sets.append((logit, np.asarray(rows.collides, bool)))
     if where == "realistic_calibration":
-        if calibration_meshes is None or len(calibration_meshes[0]) == 0:
+        if not has_meshes:
             raise UserInputError("detector.operating_set=realistic_calibration needs the realistic calibration set "
                                  "(realistic.enabled=true, realistic.calibration in conf/realistic); use "
                                  "detector.operating_set=calibration")
@@ -186,24 +187,16 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
     if where in ("calibration", "both"):
         calib, _, _ = calibration_set(oracle, det, latent_key, cache_dir)
         sets.append((predict_test_set(on_codes, calib)["logit"], np.asarray(calib.collides, bool)))
-    t = fnr_threshold(*sets[0], float(target)) if len(sets) == 1 else mean_fnr_threshold(sets, float(target))
-    logit, y = np.concatenate([s_[0] for s_ in sets]), np.concatenate([s_[1] for s_ in sets])
-    net.shift_decision(t)
+    t = operating.threshold_for(sets, float(target))
+    operating.fold_into(net, t)
     keys = ("accuracy", "fnr", "fpr", "balanced_accuracy", "base_rate", "majority_accuracy")
     at0 = {k: last_round[k] for k in keys if k in last_round}
     test_logit = predict_test_set(on_codes, test)["logit"]
     last_round.update(detection_metrics(test_logit > 0, np.asarray(test.collides, bool)))
     last_round["at_logit_0"] = at0
     last_round["threshold"] = t
-    cal = detection_metrics(logit > t, y)
-    if len(sets) > 1:  # both: the FNR that was bounded, the mean of the two sets'
-        cal["fnr"] = float(np.mean([np.mean(lg[yy] <= t) for lg, yy in sets]))
-    if len(sets) == 1:
-        ci = fnr_interval(logit > t, y)
-        cal["fnr_ci95"] = None if ci is None else list(ci)
     return {"operating_fnr": float(target), "operating_set": where, "threshold": t,
-            "calibration": {"n": int(len(y)), "n_colliding": int(y.sum()),
-                            **{k: cal[k] for k in ("accuracy", "fnr", "fpr", "fnr_ci95") if k in cal}}}
+            "calibration": operating.calibration_record(sets, t)}
 
 
 def training_oracle(oracle: LatentOracle, det: dict, seed: int) -> tuple[LatentOracle, str]:

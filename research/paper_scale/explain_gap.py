@@ -31,7 +31,7 @@ import torch
 
 from experiments.reporting.discover import paper_figures
 from neuralcol.api.run import load_run
-from neuralcol.metrics.detection import fnr_threshold
+from neuralcol.operating import fnr_threshold
 from neuralcol.samples.store import VAL_EVERY, Origin
 
 

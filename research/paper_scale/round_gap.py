@@ -23,8 +23,8 @@ import torch
 from omegaconf import OmegaConf
 from sklearn.metrics import roc_auc_score
 
-from neuralcol.metrics.detection import fnr_threshold
 from neuralcol.nn.detector import load_detector
+from neuralcol.operating import fnr_threshold
 from neuralcol.rundir import RunDir
 from neuralcol.samples.store import VAL_EVERY, Origin
 from research.paper_scale.explain_gap import rates

@@ -69,7 +69,7 @@ def probe(run_dir: Path, cache: Path, data: Path, scale: float, target: float) -
     from omegaconf import OmegaConf
 
     from neuralcol.api import load_run
-    from neuralcol.metrics.detection import fnr_threshold
+    from neuralcol.operating import fnr_threshold
     from neuralcol.pipeline import RunContext
 
     t0 = time.perf_counter()

@@ -34,9 +34,9 @@ def score(logit: np.ndarray, y: np.ndarray, t: float) -> dict:
 
 
 def sampling_std(pos_logits: np.ndarray, n: int, target: float, draws: int = 2000, seed: int = 0) -> float:
-    """Std of :func:`~neuralcol.metrics.detection.fnr_threshold` over ``draws`` bootstrap sets of ``n`` colliding
+    """Std of :func:`~neuralcol.operating.fnr_threshold` over ``draws`` bootstrap sets of ``n`` colliding
     logits drawn from ``pos_logits``: the threshold's spread from the calibration set's size alone."""
-    from neuralcol.metrics.detection import fnr_threshold
+    from neuralcol.operating import fnr_threshold
 
     rng = np.random.default_rng(seed)
     ones = np.ones(n, bool)
@@ -46,7 +46,7 @@ def sampling_std(pos_logits: np.ndarray, n: int, target: float, draws: int = 200
 def read_run(run_dir: Path, target: float) -> dict:
     """Both rules' thresholds and test-set figures for one finished run (thresholds absolute: before folding)."""
     from neuralcol.api import load_run
-    from neuralcol.metrics.detection import fnr_threshold
+    from neuralcol.operating import fnr_threshold
     from research.operating_rerun import realistic_validation_logits
 
     op = json.loads((run_dir / "metrics.json").read_text())["detector"]["operating_point"]
