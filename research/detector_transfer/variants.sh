@@ -2,3 +2,7 @@
 # presets (VARIANTS) and, where it differs, anny_body (BODY_VARIANTS). base: today's defaults.
 declare -A VARIANTS BODY_VARIANTS
 VARIANTS[base]=""
+# rows4: four times the realistic training candidates (drawn as before from the autoencoder's training meshes, seed
+# 1), up to four times as many kept per class
+VARIANTS[rows4]="detector.geometry.train_set.n_acap_interp=6000 detector.geometry.train_set.n_vertex_interp=2400 detector.geometry.train_set.n_perturbed=2400 detector.geometry.train_set.per_class=2400"
+BODY_VARIANTS[rows4]="detector.geometry.train_set.n_acap_interp=1360 detector.geometry.train_set.n_vertex_interp=520 detector.geometry.train_set.n_perturbed=520 detector.geometry.train_set.per_class=600"

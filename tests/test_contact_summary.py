@@ -1,0 +1,112 @@
+"""Per-sub-domain summaries of every close vertex pair (neuralcol.geometry.contact_summary), against a brute force
+over all vertex pairs and between their numpy and torch forms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from neuralcol.geometry.contact_pairs import hop_neighbourhood
+from neuralcol.geometry.contact_summary import SUMMARIES, ContactSummary, vertex_normals_np
+
+
+def _bent_sheet(n: int = 12, bend: float = 0.0):
+    """A grid sheet folded about its middle row by ``bend`` radians (pi: flat onto itself), and its rest pose."""
+    u, v = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 2, 2 * n - 1), indexing="ij")
+    rest = np.stack([u.ravel(), v.ravel(), np.zeros(u.size)], 1)
+    idx = np.arange(u.size).reshape(u.shape)
+    faces = np.concatenate([np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:]], -1).reshape(-1, 3),
+                            np.stack([idx[:-1, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 3)])
+    x = rest.copy()
+    above = x[:, 1] > 1
+    t = x[above, 1] - 1
+    x[above, 1] = 1 + t * np.cos(bend)
+    x[above, 2] = t * np.sin(bend)
+    partition = (rest[:, 1] > 1).astype(np.int64)  # two sub-domains: below and above the fold
+    return rest, x, faces, partition
+
+
+def _brute(summary: ContactSummary, v: np.ndarray) -> np.ndarray:
+    near = hop_neighbourhood(summary.faces, len(v), 2).toarray()
+    normals = vertex_normals_np(v, summary.faces)
+    k = summary.n_parts
+    out = np.zeros((k, len(SUMMARIES)))
+    out[:, 1:3] = 1.0
+    out[:, 3] = summary.clip
+    count = np.zeros(k)
+    for i in range(len(v)):
+        for j in range(i + 1, len(v)):
+            d = np.linalg.norm(v[j] - v[i])
+            dr = np.linalg.norm(summary.rest[j] - summary.rest[i])
+            if d >= summary.radius or near[i, j] or d >= summary.fold_ratio * dr:
+                continue
+            off = min((v[j] - v[i]) @ normals[i], (v[i] - v[j]) @ normals[j]) / summary.radius
+            off = np.clip(off, -summary.clip, summary.clip)
+            for p in (summary.partition[i], summary.partition[j]):
+                count[p] += 1
+                out[p, 1] = min(out[p, 1], d / dr)
+                out[p, 2] = min(out[p, 2], d / summary.radius)
+                out[p, 3] = min(out[p, 3], off)
+    out[:, 0] = np.log1p(count)
+    return out
+
+
+@pytest.mark.parametrize("bend", [0.0, 2.6, 3.0, 3.3])
+def test_summaries_equal_a_brute_force_over_all_pairs(bend):
+    rest, x, faces, partition = _bent_sheet(bend=bend)
+    s = ContactSummary(rest, faces, partition, 2, radius=0.3)
+    got = s.summarize(x[None])[0]
+    np.testing.assert_allclose(got, _brute(s, x), rtol=1e-6, atol=1e-6)
+    if bend == 0.0:  # a flat sheet has no close pair
+        np.testing.assert_array_equal(got, [[0, 1, 1, 3], [0, 1, 1, 3]])
+
+
+def test_a_fold_through_itself_turns_the_offset_negative():
+    rest, _, faces, partition = _bent_sheet()
+    s = ContactSummary(rest, faces, partition, 2, radius=0.3)
+    touching = s.summarize(_bent_sheet(bend=3.0)[1][None])[0]
+    through = s.summarize(_bent_sheet(bend=3.3)[1][None])[0]
+    assert touching[0, 3] > 0 and through[0, 3] < 0
+    assert touching[0, 0] > 0 and through[0, 0] > 0
+
+
+def test_torch_form_equals_numpy_and_passes_gradients_to_the_closest_pair():
+    rest, x, faces, partition = _bent_sheet(bend=3.0)
+    s = ContactSummary(rest, faces, partition, 2, radius=0.3)
+    xs = np.stack([x, _bent_sheet(bend=2.8)[1], rest])
+    t = torch.tensor(xs, dtype=torch.float64, requires_grad=True)
+    got = s.summarize_torch(t)
+    np.testing.assert_allclose(got.detach().numpy(), s.summarize(xs), rtol=1e-6, atol=1e-6)
+    got[0, 0, 2].backward()  # the smallest distance over the radius of mesh 0, sub-domain 0
+    pr = s.close_pairs(x)
+    d = np.linalg.norm(x[pr[:, 1]] - x[pr[:, 0]], axis=1)
+    closest = np.unique(pr[np.isclose(d, d.min(), rtol=1e-12)])  # (a symmetric fold ties several pairs)
+    moved = np.flatnonzero(t.grad[0].norm(dim=1).numpy() > 0)
+    assert len(moved) > 0 and set(moved) <= set(closest)
+    assert torch.all(t.grad[1:] == 0)
+
+
+def test_a_body_mesh_finds_the_same_pairs_as_scipy_sparse_filtering():
+    body = trimesh.creation.capsule(height=1.0, radius=0.3, count=[16, 16])
+    rest = np.asarray(body.vertices)
+    faces = np.asarray(body.faces)
+    squashed = rest * np.array([1.0, 1.0, 0.05])  # flattened: the two sides come together
+    s = ContactSummary(rest, faces, np.zeros(len(rest), np.int64), 1, radius=0.2)
+    pr = s.close_pairs(squashed)
+    near = hop_neighbourhood(faces, len(rest), 2)
+    assert len(pr) > 0 and not np.asarray(near[pr[:, 0], pr[:, 1]]).any()
+    d = np.linalg.norm(squashed[pr[:, 1]] - squashed[pr[:, 0]], axis=1)
+    assert np.all(d < 0.2)
+
+
+def test_bad_inputs_say_what_is_wrong():
+    rest, x, faces, partition = _bent_sheet()
+    with pytest.raises(ValueError, match="partition"):
+        ContactSummary(rest, faces, partition[:-1], 2, radius=0.3)
+    with pytest.raises(ValueError, match="radius"):
+        ContactSummary(rest, faces, partition, 2, radius=0.0)
+    s = ContactSummary(rest, faces, partition, 2, radius=0.3)
+    with pytest.raises(ValueError, match="expected"):
+        s.summarize(x)
