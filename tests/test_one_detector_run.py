@@ -87,3 +87,33 @@ def test_code_and_mesh_run_stores_features_resumes_and_judges_meshes(tmp_path, s
         assert last["fnr"] == pytest.approx(float(np.mean(f["logit"][f["collides"]] <= 0)))
     saved = json.loads((run_dir / "metrics.json").read_text())
     assert saved["detector"]["inputs"] == "code_and_mesh"
+
+
+def test_a_run_with_contact_summaries_reads_them_on_codes_and_meshes(tmp_path, scape_dir):
+    """detector.geometry.summaries=true through the pipeline: two summary rows per sub-domain after the chosen
+    pairs, stored with D_c, saved with the run's geometry and the detector, read on a user's mesh by load_run."""
+    from experiments.run import run
+    from neuralcol import load_run
+    from neuralcol.nn.detector import load_detector
+
+    cfg = _cfg(scape_dir, tmp_path)
+    cfg.detector.geometry.summaries = True
+    cfg.detector.max_rounds = 1
+    cfg.realistic.enabled = False  # (the threshold on D_c's realistic rows instead: a shorter run)
+    cfg.detector.operating_set = "realistic"
+    cfg.handler.n_inputs = 0
+    run_dir = tmp_path / "run"
+    metrics = run(cfg, run_dir)
+    with np.load(run_dir / "geometry.npz") as f:
+        n_chosen, flagged = len(f["pairs"]), bool(f["summaries"])
+    k = 16  # SCAPE's sub-domains
+    assert flagged and metrics["detector"]["n_pairs"] == n_chosen + 2 * k
+    net, meta = load_detector(run_dir / "detector.pt")
+    assert net.geometry.summary is not None and meta["geometry"]["summaries"]["min_hops"] == 2
+    (run_dir / ".hydra").mkdir(exist_ok=True)
+    OmegaConf.save(cfg, run_dir / ".hydra" / "config.yaml")
+    with load_run(run_dir) as trained:
+        v = trained.decode(trained.space.box_lo[None].clone() * 0.5).double()
+        with torch.no_grad():
+            want = net(trained.encode(v), net.geometry_of_meshes(v.float())).logit
+        torch.testing.assert_close(trained.detect(v).logit, want, rtol=1e-4, atol=1e-4)

@@ -79,13 +79,13 @@ class ContactSummary:
         pr = cKDTree(v).query_pairs(self.radius, output_type="ndarray").astype(np.int64)
         if len(pr) == 0:
             return np.zeros((0, 2), np.int64)
+        d = np.linalg.norm(v[pr[:, 1]] - v[pr[:, 0]], axis=1)
+        d_rest = np.linalg.norm(self.rest[pr[:, 1]] - self.rest[pr[:, 0]], axis=1)
+        pr = pr[d < self.fold_ratio * d_rest]  # first: it leaves few of the pairs a surface's own closeness makes
         pr.sort(axis=1)
         keys = pr[:, 0] * len(v) + pr[:, 1]
         at = np.minimum(np.searchsorted(self._near_keys, keys), len(self._near_keys) - 1)
-        pr = pr[self._near_keys[at] != keys]
-        d = np.linalg.norm(v[pr[:, 1]] - v[pr[:, 0]], axis=1)
-        d_rest = np.linalg.norm(self.rest[pr[:, 1]] - self.rest[pr[:, 0]], axis=1)
-        return pr[d < self.fold_ratio * d_rest]
+        return pr[self._near_keys[at] != keys]
 
     def summarize(self, meshes: np.ndarray) -> np.ndarray:
         """(N, K, S) float32 summaries of meshes (N, V, 3) (numpy, no gradients)."""
@@ -119,37 +119,42 @@ class ContactSummary:
 
     def summarize_torch(self, vertices: torch.Tensor) -> torch.Tensor:
         """(B, V, 3) -> (B, K, S) summaries, differentiable in the vertices: each mesh's close pairs are found
-        without gradients, then its distances, ratios and offsets are taken in torch (the count is piecewise
-        constant; the minima pass their gradient to their pair). Equal to :meth:`summarize` up to round-off."""
+        without gradients, then the distances, ratios and offsets of all meshes' pairs are taken in torch at once
+        (the count is piecewise constant; each minimum passes its gradient to its pair). Equal to
+        :meth:`summarize` up to round-off."""
         if vertices.ndim != 3 or tuple(vertices.shape[1:]) != self.rest.shape:
             raise ValueError(f"vertices have shape {tuple(vertices.shape)}, expected (B, {len(self.rest)}, 3)")
         dtype, device = vertices.dtype, vertices.device
-        rest = torch.as_tensor(self.rest, dtype=dtype, device=device)
-        faces = torch.as_tensor(self.faces, device=device)
-        partition = torch.as_tensor(self.partition, device=device)
-        k = self.n_parts
-        rows = []
-        for v in vertices:
-            pr = torch.as_tensor(self.close_pairs(v.detach().cpu().numpy()), device=device)
-            count = torch.zeros(k, dtype=dtype, device=device)
-            ratio = torch.ones(k, dtype=dtype, device=device)
-            dist = torch.ones(k, dtype=dtype, device=device)
-            offset = torch.full((k,), self.clip, dtype=dtype, device=device)
-            if len(pr):
-                i, j = pr[:, 0], pr[:, 1]
-                delta = v[j] - v[i]
-                d = delta.norm(dim=1)
-                d_rest = (rest[j] - rest[i]).norm(dim=1)
-                fn = torch.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]], dim=1)
-                normals = torch.zeros_like(v).index_add_(0, faces.reshape(-1), fn.repeat_interleave(3, dim=0))
-                normals = normals / normals.norm(dim=1, keepdim=True).clamp_min(torch.finfo(dtype).tiny)
-                off = torch.minimum((delta * normals[i]).sum(1), (-delta * normals[j]).sum(1))
-                off = (off / self.radius).clamp(-self.clip, self.clip)
-                for side in (i, j):
-                    part = partition[side]
-                    count = count.index_add(0, part, torch.ones_like(d))
-                    ratio = ratio.scatter_reduce(0, part, d / d_rest, "amin")
-                    dist = dist.scatter_reduce(0, part, d / self.radius, "amin")
-                    offset = offset.scatter_reduce(0, part, off, "amin")
-            rows.append(torch.stack([torch.log1p(count), ratio, dist, offset], dim=1))
-        return torch.stack(rows)
+        b, k = len(vertices), self.n_parts
+        found = [self.close_pairs(v) for v in vertices.detach().cpu().numpy()]
+        mesh = torch.as_tensor(np.repeat(np.arange(b), [len(p) for p in found]), device=device)
+        pr = torch.as_tensor(np.concatenate(found) if found else np.zeros((0, 2), np.int64), device=device)
+        count = torch.zeros(b * k, dtype=dtype, device=device)
+        ratio = torch.ones(b * k, dtype=dtype, device=device)
+        dist = torch.ones(b * k, dtype=dtype, device=device)
+        offset = torch.full((b * k,), self.clip, dtype=dtype, device=device)
+        if len(pr):
+            rest = torch.as_tensor(self.rest, dtype=dtype, device=device)
+            faces = torch.as_tensor(self.faces, device=device)
+            partition = torch.as_tensor(self.partition, device=device)
+            i, j = pr[:, 0], pr[:, 1]
+            delta = vertices[mesh, j] - vertices[mesh, i]  # (Q, 3)
+            d = delta.norm(dim=1)
+            d_rest = (rest[j] - rest[i]).norm(dim=1)
+            used = torch.unique(mesh)  # vertex normals of the meshes with close pairs only
+            x = vertices[used]
+            fn = torch.cross(x[:, faces[:, 1]] - x[:, faces[:, 0]], x[:, faces[:, 2]] - x[:, faces[:, 0]], dim=2)
+            normals = torch.zeros_like(x)
+            for c in range(3):
+                normals = normals.index_add(1, faces[:, c], fn)
+            normals = normals / normals.norm(dim=2, keepdim=True).clamp_min(torch.finfo(dtype).tiny)
+            row = torch.searchsorted(used, mesh)  # each pair's mesh among ``used``
+            off = torch.minimum((delta * normals[row, i]).sum(1), (-delta * normals[row, j]).sum(1))
+            off = (off / self.radius).clamp(-self.clip, self.clip)
+            for side in (i, j):
+                slot = mesh * k + partition[side]
+                count = count.index_add(0, slot, torch.ones_like(d))
+                ratio = ratio.scatter_reduce(0, slot, d / d_rest, "amin")
+                dist = dist.scatter_reduce(0, slot, d / self.radius, "amin")
+                offset = offset.scatter_reduce(0, slot, off, "amin")
+        return torch.stack([torch.log1p(count), ratio, dist, offset], dim=1).view(b, k, len(SUMMARIES))

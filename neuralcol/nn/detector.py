@@ -416,7 +416,9 @@ def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, p
              {"hidden": net.n_code_features, "activation": net.feature_activation},
              "geometry": None if net.geometry is None else
              {"pool": net.geometry_pool, "hidden": int(net.geometry_hidden), "radius": net.geometry.contact.radius,
-              "clip": net.geometry.contact.clip}}
+              "clip": net.geometry.contact.clip, "fixed_slots": int(net.geometry.n_fixed_slots),
+              "summaries": None if net.geometry.summary is None else
+              {"min_hops": net.geometry.summary_hops, "fold_ratio": net.geometry.summary_fold}}}
     blob = {"state": net.state_dict(), **plain_values(facts, Path(path).name)}
     with atomic_path(path) as tmp:
         torch.save(blob, tmp)
@@ -440,9 +442,14 @@ def load_detector(path: str | Path, map_location="cpu") -> tuple[CollisionDetect
         from neuralcol.nn.part_geometry import PartGeometry
 
         st = blob["state"]
-        geo = PartGeometry(st["geometry.contact.pairs"].numpy(), st["geometry.slots"].numpy(),
-                           st["geometry.mask"].numpy(), st["geometry.contact.faces"].numpy(), float(gf["radius"]),
-                           float(gf["clip"]))
+        m = int(gf.get("fixed_slots", st["geometry.slots"].shape[1]))  # the chosen pairs' slots (no summary rows)
+        summ = gf.get("summaries")
+        if summ is not None:
+            summ = {"rest": st["geometry.summary_rest"].numpy(), "faces": st["geometry.summary_faces"].numpy(),
+                    "partition": st["geometry.summary_partition"].numpy(), **summ}
+        geo = PartGeometry(st["geometry.contact.pairs"].numpy(), st["geometry.slots"][:, :m].numpy(),
+                           st["geometry.mask"][:, :m].numpy(), st["geometry.contact.faces"].numpy(),
+                           float(gf["radius"]), float(gf["clip"]), summ)
     net = CollisionDetector(blob["n_components"], blob["level2_dim"], state_dim=int(blob["net"]["state_dim"]),
                             hidden=int(blob["net"]["hidden"]), code_features=feats, geometry=geo,
                             geometry_hidden=int(gf["hidden"]) if gf else 32,

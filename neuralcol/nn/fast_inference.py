@@ -76,6 +76,9 @@ class FastDetector:
         if dtype not in DTYPES:
             raise ValueError(f"dtype={dtype!r}; use one of {sorted(DTYPES)}")
         device = next(net.parameters()).device
+        geometry = getattr(getattr(net, "detector", net), "geometry", None)
+        if geometry is not None and getattr(geometry, "summary", None) is not None:
+            compile = False  # contact summaries search each mesh's close pairs on the CPU (scipy): not compiled
         if block is None:
             reads_mesh = getattr(getattr(net, "detector", net), "geometry", None) is not None
             block = ((CPU_BLOCKS_MESH if reads_mesh else CPU_BLOCKS[dtype]) if device.type == "cpu" else 65536)

@@ -37,6 +37,7 @@ from neuralcol.geometry.contact_pairs import (
     fold_pair_scores,
     hop_neighbourhood,
 )
+from neuralcol.geometry.contact_summary import ContactSummary
 from neuralcol.nn.inference import batched_logits
 from neuralcol.utils.files import atomic_path
 from neuralcol.utils.progress import progress_bar
@@ -116,7 +117,7 @@ def choose_part_pairs(pairs: np.ndarray, scores: np.ndarray, partition: np.ndarr
 
 def choose_geometry(space, meshes: np.ndarray, collides: np.ndarray | None = None, radius: float = 0.02,
                     min_hops: int = 2, fold_ratio: float = 0.5, colliding_weight: float = 3.0, per_part: int = 32,
-                    clip: float = 3.0) -> PartGeometry:
+                    clip: float = 3.0, summaries: bool = False) -> PartGeometry:
     """The :class:`PartGeometry` of a latent space, its pairs chosen on example meshes.
 
     Args:
@@ -126,6 +127,8 @@ def choose_geometry(space, meshes: np.ndarray, collides: np.ndarray | None = Non
         radius: closeness radius and feature unit, a fraction of the rest mesh's bounding-box diagonal.
         min_hops, fold_ratio, colliding_weight: see :func:`close_pair_scores`. per_part: M slots per sub-domain.
         clip: features clipped to ``[-clip, clip]`` radii.
+        summaries: also read the summaries of every close pair per sub-domain (:class:`PartGeometry`), with the
+            same radius, min_hops and fold_ratio.
 
     Raises:
         ValueError: no pair comes close in the examples (the message says what to raise).
@@ -142,22 +145,58 @@ def choose_geometry(space, meshes: np.ndarray, collides: np.ndarray | None = Non
                          "radius or give more examples")
     partition = space.partition.detach().cpu().numpy()
     chosen, slots, mask = choose_part_pairs(pairs, scores, partition, int(partition.max()) + 1, per_part)
-    return PartGeometry(chosen, slots, mask, faces, radius * diag, clip)
+    return PartGeometry(chosen, slots, mask, faces, radius * diag, clip,
+                        space_summaries(space, min_hops, fold_ratio) if summaries else None)
+
+
+def space_summaries(space, min_hops: int, fold_ratio: float) -> dict:
+    """:class:`PartGeometry`'s ``summaries`` argument for a latent space's topology."""
+    return {"rest": space.rest_vertices.detach().cpu().numpy().astype(np.float64),
+            "faces": space.faces.detach().cpu().numpy(), "partition": space.partition.detach().cpu().numpy(),
+            "min_hops": int(min_hops), "fold_ratio": float(fold_ratio)}
 
 
 class PartGeometry(nn.Module):
     """(B, V', 3) vertices -> (B, P, 3) pair features, and their per-sub-domain layout (B, K, M, 3).
 
+    With ``summaries``, each sub-domain also reads the summaries of every close pair of the mesh touching it
+    (:class:`~neuralcol.geometry.contact_summary.ContactSummary`: count, closest ratio and distance, signed offset,
+    found anew per mesh), laid out as two more rows of three per sub-domain after the P chosen pairs
+    (``[log_count, min_ratio, min_dist]``, ``[min_offset, 0, 0]``) and two more slots per sub-domain: the features are
+    then ``(B, P + 2 K, 3)``, ``n_pairs`` counts those rows and ``vertex_index`` is every vertex (the summaries need the
+    whole mesh).
+
     Args:
         pairs: (P, 2) chosen pairs. slots, mask: (K, M) (:func:`choose_part_pairs`).
         faces: (F, 3) triangles. radius: the feature unit. clip: features clipped to ``[-clip, clip]``.
+        summaries: None, or ``{"rest": (V, 3), "faces": (F, 3) every triangle, "partition": (V,), "min_hops",
+            "fold_ratio"}`` (the closeness rule of the summaries, radius and clip as the pairs').
     """
 
     def __init__(self, pairs: np.ndarray, slots: np.ndarray, mask: np.ndarray, faces: np.ndarray, radius: float,
-                 clip: float = 3.0):
+                 clip: float = 3.0, summaries: dict | None = None):
         super().__init__()
         self.contact = ContactFeatures(pairs, faces, radius, clip)
-        used = torch.unique(torch.cat([self.contact.pairs.reshape(-1), self.contact.faces.reshape(-1)]))
+        slots, mask = np.asarray(slots, np.int64), np.asarray(mask, bool)
+        k = slots.shape[0]
+        self.n_fixed_slots = int(slots.shape[1])
+        self.summary = None
+        if summaries is not None:
+            rest = np.asarray(summaries["rest"], np.float64)
+            all_faces = np.asarray(summaries["faces"], np.int64)
+            partition = np.asarray(summaries["partition"], np.int64)
+            self.summary = ContactSummary(rest, all_faces, partition, k, float(self.contact.radius),
+                                          int(summaries["min_hops"]), float(summaries["fold_ratio"]), float(clip))
+            self.summary_hops, self.summary_fold = int(summaries["min_hops"]), float(summaries["fold_ratio"])
+            self.register_buffer("summary_rest", torch.as_tensor(rest))
+            self.register_buffer("summary_faces", torch.as_tensor(all_faces))
+            self.register_buffer("summary_partition", torch.as_tensor(partition))
+            extra = self.contact.n_pairs + 2 * np.arange(k)[:, None] + np.arange(2)[None, :]  # (K, 2) summary rows
+            slots = np.concatenate([slots, extra], 1)
+            mask = np.concatenate([mask, np.ones((k, 2), bool)], 1)
+            used = torch.arange(len(rest))
+        else:
+            used = torch.unique(torch.cat([self.contact.pairs.reshape(-1), self.contact.faces.reshape(-1)]))
         self.register_buffer("vertex_index", used)  # the vertices the features read (pairs and their faces)
         # the same pairs and faces numbered within vertex_index: the features of the V' vertices alone (not saved)
         local = torch.full((int(used.max()) + 1 if len(used) else 1,), -1, dtype=torch.long)
@@ -174,8 +213,29 @@ class PartGeometry(nn.Module):
                              persistent=False)
 
     @property
+    def fixed_slots(self) -> tuple[np.ndarray, np.ndarray]:
+        """The chosen pairs' own slots and mask (K, M), without the summaries' two slots per sub-domain."""
+        m = self.n_fixed_slots
+        return self.slots[:, :m].cpu().numpy(), self.mask[:, :m].cpu().numpy()
+
+    def summary_settings(self) -> dict | None:
+        """What rebuilds the summaries (the ``summaries`` argument), or None without them."""
+        if self.summary is None:
+            return None
+        return {"rest": self.summary_rest.cpu().numpy(), "faces": self.summary_faces.cpu().numpy(),
+                "partition": self.summary_partition.cpu().numpy(), "min_hops": self.summary_hops,
+                "fold_ratio": self.summary_fold}
+
+    def _summary_rows(self, vertices: torch.Tensor) -> torch.Tensor:
+        """Whole meshes (B, V, 3) -> their summaries as feature rows (B, 2 K, 3) (see the class doc)."""
+        s = self.summary.summarize_torch(vertices)  # (B, K, 4)
+        s = torch.cat([s, s.new_zeros(*s.shape[:2], 2)], -1)  # (B, K, 6)
+        return s.reshape(len(s), -1, 3)
+
+    @property
     def n_pairs(self) -> int:
-        return self.contact.n_pairs
+        """Feature rows: the chosen pairs, and two per sub-domain with summaries."""
+        return self.contact.n_pairs + (0 if self.summary is None else 2 * int(self.slots.shape[0]))
 
     def pair_features(self, vertices: torch.Tensor) -> torch.Tensor:
         """(B, V, 3) whole meshes -> (B, P, 3) [dist, s_min, s_max] per pair."""
@@ -185,13 +245,21 @@ class PartGeometry(nn.Module):
         """(B, V', 3) the vertices ``vertex_index`` only -> (B, P, 3): what :meth:`pair_features` gives for the
         whole meshes (the normals at the pair vertices need only the faces around them)."""
         f = contact_features(vertices, self.local_pairs, self.local_faces, self.contact.radius, self.contact.clip)
-        return f.reshape(len(f), 3, -1).transpose(1, 2)  # (B, 3 P) as [dist..., s_min..., s_max...] -> (B, P, 3)
+        f = f.reshape(len(f), 3, -1).transpose(1, 2)  # (B, 3 P) as [dist..., s_min..., s_max...] -> (B, P, 3)
+        if self.summary is None:
+            return f
+        return torch.cat([f, self._summary_rows(vertices).to(f.dtype)], 1)
 
     def features_batch_last(self, x: torch.Tensor) -> torch.Tensor:
         """The vertices ``vertex_index`` batch last, (V', 3, B) -> (3 P, B) ``[dist..., s_min..., s_max...]``:
         :meth:`features_of_vertices` without its two transposes (the fast path on codes, :class:`DetectorOnCodes`)."""
-        return contact_features_batch_last(x, self.local_pairs, self.local_faces, self.contact.radius,
-                                           self.contact.clip)
+        f = contact_features_batch_last(x, self.local_pairs, self.local_faces, self.contact.radius,
+                                        self.contact.clip)
+        if self.summary is None:
+            return f
+        b = x.shape[2]
+        rows = self._summary_rows(x.permute(2, 0, 1)).to(f.dtype).permute(2, 1, 0)  # (3, 2 K, B)
+        return torch.cat([f.view(3, -1, b), rows], 1).reshape(-1, b)
 
     def per_part_batch_last(self, feats: torch.Tensor) -> torch.Tensor:
         """(3 P, B) batch-last features -> (K, 3 M, B): each sub-domain's slots as ``per_part(...).flatten(2)``
@@ -330,12 +398,15 @@ def choose_run_geometry(space, z: np.ndarray, collides: np.ndarray, real, cfg: d
         y = np.concatenate([y, real.collides])
     geo = choose_geometry(space, v, y, radius=float(cfg["radius"]), min_hops=int(cfg["min_hops"]),
                           fold_ratio=float(cfg["fold_ratio"]), colliding_weight=float(cfg["colliding_weight"]),
-                          per_part=int(cfg["per_part"]), clip=float(cfg["clip"]))
+                          per_part=int(cfg["per_part"]), clip=float(cfg["clip"]),
+                          summaries=bool(cfg.get("summaries", False)))
+    slots, mask = geo.fixed_slots
     with atomic_path(Path(path)) as tmp:
         with open(tmp, "wb") as f:
-            np.savez(f, pairs=geo.contact.pairs.numpy(), slots=geo.slots.numpy(), mask=geo.mask.numpy(),
+            np.savez(f, pairs=geo.contact.pairs.numpy(), slots=slots, mask=mask,
                      radius=np.float64(geo.contact.radius), clip=np.float64(geo.contact.clip),
-                     n_examples=np.int64(len(v)))
+                     n_examples=np.int64(len(v)), summaries=np.bool_(geo.summary is not None),
+                     min_hops=np.int64(cfg["min_hops"]), fold_ratio=np.float64(cfg["fold_ratio"]))
     return geo
 
 
@@ -343,8 +414,11 @@ def choose_run_geometry(space, z: np.ndarray, collides: np.ndarray, real, cfg: d
 def load_run_geometry(space, path: str | Path) -> PartGeometry:
     """The pairs :func:`choose_run_geometry` saved (a resumed run builds the same detector)."""
     with np.load(Path(path), allow_pickle=False) as f:
+        summaries = None
+        if "summaries" in f.files and bool(f["summaries"]):
+            summaries = space_summaries(space, int(f["min_hops"]), float(f["fold_ratio"]))
         return PartGeometry(f["pairs"], f["slots"], f["mask"], space.faces.detach().cpu().numpy(),
-                            float(f["radius"]), float(f["clip"]))
+                            float(f["radius"]), float(f["clip"]), summaries)
 
 
 

@@ -311,7 +311,8 @@ def cascade(cfg: DictConfig, net: DetectorOnCodes, sampling: Sampling, cal: Cali
     the exact labeler (µs and ms per sample); None without bands."""
     if cal is None or cal.bands is None:
         return None
-    detector_us = inference_us(net, sampling.test.z, batch_sizes=(4096,))["batch_4096"]
+    timed = inference_us(net, sampling.test.z, batch_sizes=(4096,))  # (fewer rows for a detector with summaries)
+    detector_us = next(v for k, v in timed.items() if k.startswith("batch_"))
     return cascade_stage(net, sampling.latent.space, sampling.labeler, sampling.test, cal.bands, cal.collides,
                          cfg.detector, detector_us, None if real is None else real.arrays)
 

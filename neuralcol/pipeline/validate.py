@@ -69,6 +69,8 @@ def config_problems(cfg: DictConfig) -> list[str]:
         for key in ("detector.geometry.radius", "detector.geometry.fold_ratio", "detector.geometry.clip"):
             need(key, lambda v: float(v) > 0, "must be > 0")
         need("detector.geometry.pool", lambda v: v in ("linear", "deepsets"), "use linear or deepsets")
+        if _get(cfg, "detector.geometry.summaries") is not None:
+            need("detector.geometry.summaries", lambda v: isinstance(v, bool), "use true or false")
     threads = _get(cfg, "threads")
     if threads is not None and not (is_int(threads) and threads >= 1):  # null: the machine's default
         problems.append(f"threads={threads!r}: must be an integer >= 1 (1, the default, gives the same numbers on "

@@ -6,3 +6,5 @@ VARIANTS[base]=""
 # 1), up to four times as many kept per class
 VARIANTS[rows4]="detector.geometry.train_set.n_acap_interp=6000 detector.geometry.train_set.n_vertex_interp=2400 detector.geometry.train_set.n_perturbed=2400 detector.geometry.train_set.per_class=2400"
 BODY_VARIANTS[rows4]="detector.geometry.train_set.n_acap_interp=1360 detector.geometry.train_set.n_vertex_interp=520 detector.geometry.train_set.n_perturbed=520 detector.geometry.train_set.per_class=600"
+# summaries: each sub-domain also reads the summaries of every close pair of the mesh (neuralcol/geometry/contact_summary.py)
+VARIANTS[summaries]="detector.geometry.summaries=true"
