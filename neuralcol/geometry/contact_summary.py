@@ -25,11 +25,75 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
+from numba import njit
 
 from neuralcol.geometry.contact_pairs import hop_neighbourhood
 
 SUMMARIES = ("log_count", "min_ratio", "min_dist", "min_offset")
+
+
+@njit(cache=True)
+def _close_pairs_kernel(v, rest, radius, fold_ratio, near_ptr, near_idx):  # pragma: no cover (compiled)
+    """Close pairs (i < j) of one mesh: a uniform grid of cell ``radius``, then the distance, the fold rule and the
+    hop rule (``near_idx[near_ptr[i]:near_ptr[i + 1]]``, sorted, the vertices near i)."""
+    n = v.shape[0]
+    lo = v[0].copy()
+    for i in range(n):
+        for c in range(3):
+            lo[c] = min(lo[c], v[i, c])
+    cell = np.empty((n, 3), np.int64)
+    dims = np.ones(3, np.int64)
+    for i in range(n):
+        for c in range(3):
+            cell[i, c] = int((v[i, c] - lo[c]) / radius)
+            dims[c] = max(dims[c], cell[i, c] + 1)
+    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    n_cells = dims[0] * dims[1] * dims[2]
+    start = np.zeros(n_cells + 1, np.int64)  # counting sort: the vertices of cell k are order[start[k]:start[k + 1]]
+    for i in range(n):
+        start[key[i] + 1] += 1
+    for k in range(n_cells):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        order[fill[key[i]]] = i
+        fill[key[i]] += 1
+    r2, f2 = radius * radius, fold_ratio * fold_ratio
+    cap = 4 * n
+    out = np.empty((cap, 2), np.int64)
+    m = 0
+    for i in range(n):
+        ci0, ci1, ci2 = cell[i, 0], cell[i, 1], cell[i, 2]
+        for a in range(max(ci0 - 1, 0), min(ci0 + 2, dims[0])):
+            for b in range(max(ci1 - 1, 0), min(ci1 + 2, dims[1])):
+                for c in range(max(ci2 - 1, 0), min(ci2 + 2, dims[2])):
+                    k = (a * dims[1] + b) * dims[2] + c
+                    for s in range(start[k], start[k + 1]):
+                        j = order[s]
+                        if j <= i:
+                            continue
+                        d2 = 0.0
+                        q2 = 0.0
+                        for e in range(3):
+                            t = v[j, e] - v[i, e]
+                            d2 += t * t
+                            u = rest[j, e] - rest[i, e]
+                            q2 += u * u
+                        if d2 >= r2 or d2 >= f2 * q2:
+                            continue
+                        lo_n, hi_n = near_ptr[i], near_ptr[i + 1]
+                        at = lo_n + np.searchsorted(near_idx[lo_n:hi_n], j)
+                        if at < hi_n and near_idx[at] == j:
+                            continue
+                        if m == cap:
+                            grown = np.empty((2 * cap, 2), np.int64)
+                            grown[:m] = out[:m]
+                            out, cap = grown, 2 * cap
+                        out[m, 0] = i
+                        out[m, 1] = j
+                        m += 1
+    return out[:m]
 
 
 def vertex_normals_np(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -66,26 +130,27 @@ class ContactSummary:
             raise ValueError(f"partition must be ({n},) with values in [0, {n_parts})")
         if not self.radius > 0:
             raise ValueError(f"radius must be > 0, got {radius}")
-        near = hop_neighbourhood(self.faces, n, int(min_hops)).tocoo()
-        self._near_keys = np.unique(near.row.astype(np.int64) * n + near.col)  # sorted packed keys i * V + j
+        near = hop_neighbourhood(self.faces, n, int(min_hops)).tocsr()
+        near.sort_indices()
+        self._near_ptr = near.indptr.astype(np.int64)  # vertices within min_hops edges of i: sorted, CSR
+        self._near_idx = near.indices.astype(np.int64)
+        corner = np.argsort(self.faces.ravel(), kind="stable")  # the faces around each vertex, CSR
+        self._vf_idx = corner // 3
+        self._vf_ptr = np.concatenate([[0], np.cumsum(np.bincount(self.faces.ravel(), minlength=n))])
 
     @property
     def n_summaries(self) -> int:
         return len(SUMMARIES)
 
     def close_pairs(self, vertices: np.ndarray) -> np.ndarray:
-        """(P, 2) int64 close pairs of one mesh (V, 3), i < j (see the module doc)."""
-        v = np.asarray(vertices, np.float64)
-        pr = cKDTree(v).query_pairs(self.radius, output_type="ndarray").astype(np.int64)
-        if len(pr) == 0:
-            return np.zeros((0, 2), np.int64)
-        d = np.linalg.norm(v[pr[:, 1]] - v[pr[:, 0]], axis=1)
-        d_rest = np.linalg.norm(self.rest[pr[:, 1]] - self.rest[pr[:, 0]], axis=1)
-        pr = pr[d < self.fold_ratio * d_rest]  # first: it leaves few of the pairs a surface's own closeness makes
-        pr.sort(axis=1)
-        keys = pr[:, 0] * len(v) + pr[:, 1]
-        at = np.minimum(np.searchsorted(self._near_keys, keys), len(self._near_keys) - 1)
-        return pr[self._near_keys[at] != keys]
+        """(P, 2) int64 close pairs of one mesh (V, 3), i < j, in order of i then of j's grid cell (see the module
+        doc; a compiled grid search, about 0.5 ms on 2 500 vertices)."""
+        v = np.ascontiguousarray(vertices, dtype=np.float64)
+        if v.shape != self.rest.shape:
+            raise ValueError(f"vertices have shape {v.shape}, expected {self.rest.shape}")
+        if not np.isfinite(v).all():
+            raise ValueError("vertices hold NaN or infinite values")
+        return _close_pairs_kernel(v, self.rest, self.radius, self.fold_ratio, self._near_ptr, self._near_idx)
 
     def summarize(self, meshes: np.ndarray) -> np.ndarray:
         """(N, K, S) float32 summaries of meshes (N, V, 3) (numpy, no gradients)."""
@@ -135,21 +200,13 @@ class ContactSummary:
         offset = torch.full((b * k,), self.clip, dtype=dtype, device=device)
         if len(pr):
             rest = torch.as_tensor(self.rest, dtype=dtype, device=device)
-            faces = torch.as_tensor(self.faces, device=device)
             partition = torch.as_tensor(self.partition, device=device)
             i, j = pr[:, 0], pr[:, 1]
             delta = vertices[mesh, j] - vertices[mesh, i]  # (Q, 3)
             d = delta.norm(dim=1)
             d_rest = (rest[j] - rest[i]).norm(dim=1)
-            used = torch.unique(mesh)  # vertex normals of the meshes with close pairs only
-            x = vertices[used]
-            fn = torch.cross(x[:, faces[:, 1]] - x[:, faces[:, 0]], x[:, faces[:, 2]] - x[:, faces[:, 0]], dim=2)
-            normals = torch.zeros_like(x)
-            for c in range(3):
-                normals = normals.index_add(1, faces[:, c], fn)
-            normals = normals / normals.norm(dim=2, keepdim=True).clamp_min(torch.finfo(dtype).tiny)
-            row = torch.searchsorted(used, mesh)  # each pair's mesh among ``used``
-            off = torch.minimum((delta * normals[row, i]).sum(1), (-delta * normals[row, j]).sum(1))
+            normal_of = self._pair_normals(vertices, mesh.cpu().numpy(), pr.cpu().numpy())
+            off = torch.minimum((delta * normal_of[0]).sum(1), (-delta * normal_of[1]).sum(1))
             off = (off / self.radius).clamp(-self.clip, self.clip)
             for side in (i, j):
                 slot = mesh * k + partition[side]
@@ -158,3 +215,25 @@ class ContactSummary:
                 dist = dist.scatter_reduce(0, slot, d / self.radius, "amin")
                 offset = offset.scatter_reduce(0, slot, off, "amin")
         return torch.stack([torch.log1p(count), ratio, dist, offset], dim=1).view(b, k, len(SUMMARIES))
+
+    def _pair_normals(self, vertices: torch.Tensor, mesh: np.ndarray, pr: np.ndarray) -> tuple[torch.Tensor, ...]:
+        """The unit area-weighted vertex normals (differentiable) at both ends of every pair, (Q, 3) each: only
+        the faces around those vertices are read."""
+        n_vert = len(self.rest)
+        keys = np.concatenate([mesh * n_vert + pr[:, 0], mesh * n_vert + pr[:, 1]])
+        need, back = np.unique(keys, return_inverse=True)  # (mesh, vertex) pairs whose normal is read
+        nm, nv = need // n_vert, need % n_vert
+        deg = self._vf_ptr[nv + 1] - self._vf_ptr[nv]
+        owner = np.repeat(np.arange(len(need)), deg)
+        at = np.arange(len(owner)) - np.repeat(np.cumsum(deg) - deg, deg)
+        fid = self._vf_idx[self._vf_ptr[nv][owner] + at]
+        device = vertices.device
+        tri = torch.as_tensor(self.faces[fid], device=device)  # (T, 3)
+        m = torch.as_tensor(nm[owner], device=device)
+        a, b, c = (vertices[m, tri[:, q]] for q in range(3))
+        fn = torch.cross(b - a, c - a, dim=1)  # twice the area times the unit normal
+        n = torch.zeros(len(need), 3, dtype=vertices.dtype, device=device).index_add(
+            0, torch.as_tensor(owner, device=device), fn)
+        n = n / n.norm(dim=1, keepdim=True).clamp_min(torch.finfo(vertices.dtype).tiny)
+        back = torch.as_tensor(back, device=device)
+        return n[back[:len(pr)]], n[back[len(pr):]]

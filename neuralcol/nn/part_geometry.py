@@ -43,6 +43,7 @@ from neuralcol.utils.files import atomic_path
 from neuralcol.utils.progress import progress_bar
 
 INPUTS = ("latent", "code_and_mesh")  # detector.inputs
+SUMMARY_ROWS = 256  # the largest batch timed for a detector that reads contact summaries (a CPU search per mesh)
 
 
 def close_pair_scores(meshes: np.ndarray, collides: np.ndarray, rest: np.ndarray, faces: np.ndarray,

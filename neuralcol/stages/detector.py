@@ -31,6 +31,7 @@ from neuralcol.metrics.tensorboard import log_round_examples
 from neuralcol.nn.detector import CollisionDetector, build_detector, load_detector, net_widths, save_detector
 from neuralcol.nn.inference import batched_logits
 from neuralcol.nn.part_geometry import (
+    SUMMARY_ROWS,
     DetectorOnCodes,
     choose_run_geometry,
     codes_featurizer,
@@ -74,9 +75,6 @@ def predict_test_set(net: CollisionDetector, test: CollisionRows, batch: int = 4
     return {"prob": torch.sigmoid(logit).numpy().astype(np.float32), "logit": logit.numpy().astype(np.float32),
             "pd": np.asarray(test.pd, np.float32), "pd_sub": np.asarray(test.pd_sub, np.float32),
             "collides": np.asarray(test.collides, bool)}
-
-
-SUMMARY_ROWS = 256  # the largest batch inference_us times for a detector that reads contact summaries
 
 
 def inference_us(net: CollisionDetector, z: np.ndarray, batch_sizes=(1, 4096), reps: int = 5) -> dict:

@@ -47,6 +47,7 @@ import numpy as np
 import torch
 
 from neuralcol.metrics.detection import detection_metrics
+from neuralcol.nn.part_geometry import SUMMARY_ROWS
 from neuralcol.utils.config import as_dict
 
 FORMS = ("float32", "bfloat16", "bfloat16_checked")  # neuralcol.nn.fast_inference.FORMS
@@ -229,8 +230,13 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
             notes.append(f"FCL left out: python-fcl is not importable ({e}); pip install python-fcl")
     detectors: dict[tuple[str, str], FastDetector] = {}
     forms = ["float32", *[f for f in c["forms"] if f != "float32"]]  # eager float32: the run's own forward pass
+    geometry = getattr(getattr(net, "detector", None), "geometry", None)
+    summaries = geometry is not None and geometry.summary is not None
+    if summaries:  # its close-pair search runs outside torch: never compiled, timed on fewer codes
+        notes.append(f"{family}: reads contact summaries (a CPU search per mesh): eager only, timed on at most "
+                     f"{SUMMARY_ROWS} codes")
     for form in forms:
-        for compiled in ([False, True] if c["compile"] and form in c["forms"] else [False]):
+        for compiled in ([False, True] if c["compile"] and form in c["forms"] and not summaries else [False]):
             key = (family, f"{form} {'compiled' if compiled else 'eager'}")
             t0 = time.perf_counter()
             try:
@@ -279,7 +285,7 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
         f"({time.perf_counter() - t0:.1f} s)")
 
     # ---------------------------------------------------------------- throughput, timed on the same codes
-    batch = int(c["batch"])
+    batch = min(int(c["batch"]), SUMMARY_ROWS) if summaries else int(c["batch"])
     z_b = torch.as_tensor(np.resize(z_t, (batch, z_t.shape[1])))  # the timed codes repeated up to the batch
     timed: dict[tuple[str, str], Callable[[], object]] = {}
     warm: dict[tuple[str, str], Callable[[], object]] = {}

@@ -8,3 +8,6 @@ VARIANTS[rows4]="detector.geometry.train_set.n_acap_interp=6000 detector.geometr
 BODY_VARIANTS[rows4]="detector.geometry.train_set.n_acap_interp=1360 detector.geometry.train_set.n_vertex_interp=520 detector.geometry.train_set.n_perturbed=520 detector.geometry.train_set.per_class=600"
 # summaries: each sub-domain also reads the summaries of every close pair of the mesh (neuralcol/geometry/contact_summary.py)
 VARIANTS[summaries]="detector.geometry.summaries=true"
+# summaries_rows4: both
+VARIANTS[summaries_rows4]="detector.geometry.summaries=true ${VARIANTS[rows4]}"
+BODY_VARIANTS[summaries_rows4]="detector.geometry.summaries=true ${BODY_VARIANTS[rows4]}"
