@@ -65,34 +65,38 @@ def _close_pairs_kernel(v, rest, radius, fold_ratio, near_ptr, near_idx):  # pra
     m = 0
     for i in range(n):
         ci0, ci1, ci2 = cell[i, 0], cell[i, 1], cell[i, 2]
-        for a in range(max(ci0 - 1, 0), min(ci0 + 2, dims[0])):
-            for b in range(max(ci1 - 1, 0), min(ci1 + 2, dims[1])):
-                for c in range(max(ci2 - 1, 0), min(ci2 + 2, dims[2])):
-                    k = (a * dims[1] + b) * dims[2] + c
-                    for s in range(start[k], start[k + 1]):
-                        j = order[s]
-                        if j <= i:
-                            continue
-                        d2 = 0.0
-                        q2 = 0.0
-                        for e in range(3):
-                            t = v[j, e] - v[i, e]
-                            d2 += t * t
-                            u = rest[j, e] - rest[i, e]
-                            q2 += u * u
-                        if d2 >= r2 or d2 >= f2 * q2:
-                            continue
-                        lo_n, hi_n = near_ptr[i], near_ptr[i + 1]
-                        at = lo_n + np.searchsorted(near_idx[lo_n:hi_n], j)
-                        if at < hi_n and near_idx[at] == j:
-                            continue
-                        if m == cap:
-                            grown = np.empty((2 * cap, 2), np.int64)
-                            grown[:m] = out[:m]
-                            out, cap = grown, 2 * cap
-                        out[m, 0] = i
-                        out[m, 1] = j
-                        m += 1
+        for o in range(13, 27):  # i's own cell and the 13 after it: each pair of cells once
+            a, b, c = ci0 + o // 9 - 1, ci1 + (o // 3) % 3 - 1, ci2 + o % 3 - 1
+            if a < 0 or b < 0 or c < 0 or a >= dims[0] or b >= dims[1] or c >= dims[2]:
+                continue
+            k = (a * dims[1] + b) * dims[2] + c
+            for s in range(start[k], start[k + 1]):
+                j = order[s]
+                if o == 13 and j <= i:
+                    continue
+                d2 = 0.0
+                for e in range(3):
+                    t = v[j, e] - v[i, e]
+                    d2 += t * t
+                if d2 >= r2:
+                    continue
+                q2 = 0.0
+                for e in range(3):
+                    u = rest[j, e] - rest[i, e]
+                    q2 += u * u
+                if d2 >= f2 * q2:
+                    continue
+                lo_n, hi_n = near_ptr[i], near_ptr[i + 1]
+                at = lo_n + np.searchsorted(near_idx[lo_n:hi_n], j)
+                if at < hi_n and near_idx[at] == j:
+                    continue
+                if m == cap:
+                    grown = np.empty((2 * cap, 2), np.int64)
+                    grown[:m] = out[:m]
+                    out, cap = grown, 2 * cap
+                out[m, 0] = min(i, j)
+                out[m, 1] = max(i, j)
+                m += 1
     return out[:m]
 
 
@@ -143,8 +147,8 @@ class ContactSummary:
         return len(SUMMARIES)
 
     def close_pairs(self, vertices: np.ndarray) -> np.ndarray:
-        """(P, 2) int64 close pairs of one mesh (V, 3), i < j, in order of i then of j's grid cell (see the module
-        doc; a compiled grid search, about 0.5 ms on 2 500 vertices)."""
+        """(P, 2) int64 close pairs of one mesh (V, 3), i < j, in the grid search's order (see the module doc; a
+        compiled search of a uniform grid of cell ``radius``, about 0.5 ms on 2 500 vertices)."""
         v = np.ascontiguousarray(vertices, dtype=np.float64)
         if v.shape != self.rest.shape:
             raise ValueError(f"vertices have shape {v.shape}, expected {self.rest.shape}")
