@@ -17,7 +17,7 @@ LAYERS = [
     {"collision", "metrics"},
     {"repair"},
     {"nn"},
-    {"data"},
+    {"data", "operating"},
     {"samples"},
     {"active", "handler"},
     {"lit"},
