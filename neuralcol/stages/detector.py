@@ -22,7 +22,6 @@ import numpy as np
 import torch
 from hydra.utils import instantiate
 
-from neuralcol import operating
 from neuralcol.active.rounds import Schedule
 from neuralcol.errors import UserInputError
 from neuralcol.lit.detector import DetectorLitModule, detector_module
@@ -39,6 +38,7 @@ from neuralcol.nn.part_geometry import (
     load_run_geometry,
     mesh_pair_features,
 )
+from neuralcol.operating import OPERATING_SETS, calibration_record, choose_set, fold_into, threshold_for
 from neuralcol.rundir import RunDir
 from neuralcol.samples.cache import calibration_set, label_failures, samples_cache_dir, shared_test_set
 from neuralcol.samples.datamodule import CollisionDataModule
@@ -170,14 +170,14 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
         return None
     on_codes = DetectorOnCodes(net, space)
     asked = str(det.get("operating_set", "calibration"))
-    if asked not in operating.OPERATING_SETS:
-        raise UserInputError(f"detector.operating_set={asked!r}; use one of {', '.join(operating.OPERATING_SETS)}")
+    if asked not in OPERATING_SETS:
+        raise UserInputError(f"detector.operating_set={asked!r}; use one of {', '.join(OPERATING_SETS)}")
     rows = None
     if store is not None and asked in ("realistic", "auto", "both"):  # only the realistic validation rows are read
         rows = store.read_rows((store.column("origin") == Origin.REALISTIC) & store.split_mask())
     found = rows is not None and rows.geometry is not None and len(rows.z) > 0
     has_meshes = calibration_meshes is not None and len(calibration_meshes[0]) > 0
-    where = operating.choose_set(asked, has_meshes, found)
+    where = choose_set(asked, has_meshes, found)
     sets = []
     if where in ("realistic", "both"):
         if not found:
@@ -195,8 +195,8 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
     if where in ("calibration", "both"):
         calib, _, _ = calibration_set(oracle, det, latent_key, cache_dir)
         sets.append((predict_test_set(on_codes, calib)["logit"], np.asarray(calib.collides, bool)))
-    t = operating.threshold_for(sets, float(target))
-    operating.fold_into(net, t)
+    t = threshold_for(sets, float(target))
+    fold_into(net, t)
     keys = ("accuracy", "fnr", "fpr", "balanced_accuracy", "base_rate", "majority_accuracy")
     at0 = {k: last_round[k] for k in keys if k in last_round}
     test_logit = predict_test_set(on_codes, test)["logit"]
@@ -204,7 +204,7 @@ def operating_point(net: CollisionDetector, space, oracle: LatentOracle, det: di
     last_round["at_logit_0"] = at0
     last_round["threshold"] = t
     return {"operating_fnr": float(target), "operating_set": where, "threshold": t,
-            "calibration": operating.calibration_record(sets, t)}
+            "calibration": calibration_record(sets, t)}
 
 
 def training_oracle(oracle: LatentOracle, det: dict, seed: int) -> tuple[LatentOracle, str]:
