@@ -2,9 +2,9 @@
 
 :mod:`neuralcol.geometry.contact_pairs` measures a fixed list of vertex pairs, chosen on example meshes; a
 collision between two vertices that never came close in those examples is invisible to it. The summaries here read
-*every* close pair of the mesh at hand, found anew per mesh (a k-d tree), and pool them per sub-domain, so they do not
-depend on which pair closes nor on the parts far from the contact: what a detector needs to carry from the codes it
-trained on to the meshes a user brings.
+*every* close pair of the mesh at hand, found anew per mesh (a compiled grid search), and pool them per sub-domain, so
+they do not depend on which pair closes nor on the parts far from the contact: what a detector needs to carry from the
+codes it trained on to the meshes a user brings.
 
 A pair (i, j) is *close* in a mesh ``x`` when ``|x_j - x_i| < radius``, the two vertices lie more than ``min_hops``
 edges apart, and ``|x_j - x_i| < fold_ratio * |r_j - r_i|`` (their distance in the rest mesh ``r``): two pieces of
