@@ -141,20 +141,12 @@ def calibration_record(sets: list[tuple[np.ndarray, np.ndarray]], threshold: flo
 
 
 def score(logit: np.ndarray, collides: np.ndarray, threshold: float) -> dict:
-    """A detector's figures on a labeled set when it decides at ``logit > threshold``: accuracy, FNR, FPR,
-    balanced accuracy, base rate, the majority class's accuracy, ``skill`` (the share of the majority class's
-    errors it avoids: (accuracy - majority) / (1 - majority)), ``n``, ``n_colliding`` and the FNR's 95 % interval."""
-    from neuralcol.metrics.detection import detection_metrics, fnr_interval
+    """A detector's figures on a labeled set when it decides at ``logit > threshold``
+    (:func:`~neuralcol.metrics.detection.detection_report`: accuracy, FNR, FPR, balanced accuracy, base rate, the
+    majority class's accuracy, ``skill`` against it, ``n``, ``n_colliding`` and the FNR's 95 % interval)."""
+    from neuralcol.metrics.detection import detection_report
 
-    y = np.asarray(collides, bool)
-    pred = np.asarray(logit, np.float64) > threshold
-    m = detection_metrics(pred, y)
-    maj = m["majority_accuracy"]
-    m["skill"] = (m["accuracy"] - maj) / (1 - maj) if maj < 1 else float("nan")
-    ci = fnr_interval(pred, y)
-    return {**{k: m[k] for k in ("accuracy", "fnr", "fpr", "balanced_accuracy", "base_rate", "majority_accuracy",
-                                  "skill")},
-            "n": int(len(y)), "n_colliding": int(y.sum()), "fnr_ci95": None if ci is None else list(ci)}
+    return detection_report(np.asarray(logit, np.float64) > threshold, np.asarray(collides, bool))
 
 
 def fold_into(net, threshold: float) -> None:

@@ -13,3 +13,23 @@ run_once() {
     paths.cache_dir="$CACHE" hydra.run.dir="$dir" > "$out/$name.log" 2>&1
   echo "$name: $(date -u +%H:%M) end"
 }
+
+# run_presets OUT "SEEDS" "SETS" "GRID" "BODY_GRID": run_once for every data set of SETS (make_run, scape, proc_cloth,
+# anny_body: make run and the CPU presets) and seed, into OUT/<set>_s<seed>, with the overrides GRID (space-separated;
+# BODY_GRID for anny_body).
+run_presets() {
+  local out=$1 seeds=$2 sets=$3 grid=$4 body=$5 d s preset extra
+  for d in $sets; do
+    case $d in
+      make_run) preset=() ; extra=$grid ;;
+      scape) preset=(experiment=cpu_scape) ; extra=$grid ;;
+      proc_cloth) preset=(experiment=cpu_proc_cloth) ; extra=$grid ;;
+      anny_body) preset=(experiment=cpu_anny_body) ; extra=$body ;;
+      *) echo "run_presets: unknown data set '$d'; use make_run, scape, proc_cloth or anny_body" >&2; return 2 ;;
+    esac
+    for s in $seeds; do
+      # shellcheck disable=SC2086  # the overrides are space-separated words
+      run_once "$out" "${d}_s$s" "${preset[@]}" seed=$s $extra
+    done
+  done
+}

@@ -128,13 +128,13 @@ class ContactSummary:
         self.faces = np.asarray(faces, np.int64)
         self.partition = np.asarray(partition, np.int64)
         self.n_parts, self.radius = int(n_parts), float(radius)
-        self.fold_ratio, self.clip = float(fold_ratio), float(clip)
+        self.min_hops, self.fold_ratio, self.clip = int(min_hops), float(fold_ratio), float(clip)
         n = len(self.rest)
         if self.partition.shape != (n,) or (n and (self.partition.min() < 0 or self.partition.max() >= n_parts)):
             raise ValueError(f"partition must be ({n},) with values in [0, {n_parts})")
         if not self.radius > 0:
             raise ValueError(f"radius must be > 0, got {radius}")
-        near = hop_neighbourhood(self.faces, n, int(min_hops)).tocsr()
+        near = hop_neighbourhood(self.faces, n, self.min_hops).tocsr()
         near.sort_indices()
         self._near_ptr = near.indptr.astype(np.int64)  # vertices within min_hops edges of i: sorted, CSR
         self._near_idx = near.indices.astype(np.int64)

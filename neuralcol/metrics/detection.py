@@ -54,3 +54,17 @@ def fnr_interval(predicted: np.ndarray, actual: np.ndarray, level: float = 0.95)
     """:func:`proportion_interval` of the FNR of boolean predictions against exact labels (None: nothing collides)."""
     a = np.asarray(actual, bool)
     return proportion_interval(int((~np.asarray(predicted, bool) & a).sum()), int(a.sum()), level)
+
+
+def detection_report(predicted: np.ndarray, actual: np.ndarray) -> dict:
+    """:func:`detection_metrics` with what a report reads beside them: ``skill`` (the share of the majority class's
+    errors avoided, (accuracy - majority) / (1 - majority); NaN when one class is all), ``n_colliding`` and the FNR's
+    95 % Clopper-Pearson interval ``fnr_ci95`` (None when nothing collides). No rows: ``{"n": 0}``."""
+    a = np.asarray(actual, bool)
+    if len(a) == 0:
+        return {"n": 0}
+    m = detection_metrics(predicted, a)
+    maj = m["majority_accuracy"]
+    ci = fnr_interval(predicted, a)
+    return {**m, "skill": float((m["accuracy"] - maj) / (1.0 - maj)) if maj < 1.0 else float("nan"),
+            "n_colliding": int(a.sum()), "fnr_ci95": None if ci is None else list(ci)}

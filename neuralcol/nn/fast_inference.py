@@ -25,7 +25,7 @@ import copy
 import torch
 
 from neuralcol.nn.detector import CollisionDetector, DetectorOutput
-from neuralcol.nn.part_geometry import vertex_decoder
+from neuralcol.nn.part_geometry import reads_summaries, vertex_decoder
 
 DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 MIN_PADDED_ROWS = 16  # the smallest compiled block
@@ -76,8 +76,7 @@ class FastDetector:
         if dtype not in DTYPES:
             raise ValueError(f"dtype={dtype!r}; use one of {sorted(DTYPES)}")
         device = next(net.parameters()).device
-        geometry = getattr(getattr(net, "detector", net), "geometry", None)
-        if geometry is not None and getattr(geometry, "summary", None) is not None:
+        if reads_summaries(net):
             compile = False  # contact summaries search each mesh's close pairs on the CPU (scipy): not compiled
         if block is None:
             reads_mesh = getattr(getattr(net, "detector", net), "geometry", None) is not None

@@ -188,7 +188,6 @@ class PartGeometry(nn.Module):
             partition = np.asarray(summaries["partition"], np.int64)
             self.summary = ContactSummary(rest, all_faces, partition, k, float(self.contact.radius),
                                           int(summaries["min_hops"]), float(summaries["fold_ratio"]), float(clip))
-            self.summary_hops, self.summary_fold = int(summaries["min_hops"]), float(summaries["fold_ratio"])
             self.register_buffer("summary_rest", torch.as_tensor(rest))
             self.register_buffer("summary_faces", torch.as_tensor(all_faces))
             self.register_buffer("summary_partition", torch.as_tensor(partition))
@@ -224,8 +223,8 @@ class PartGeometry(nn.Module):
         if self.summary is None:
             return None
         return {"rest": self.summary_rest.cpu().numpy(), "faces": self.summary_faces.cpu().numpy(),
-                "partition": self.summary_partition.cpu().numpy(), "min_hops": self.summary_hops,
-                "fold_ratio": self.summary_fold}
+                "partition": self.summary_partition.cpu().numpy(), "min_hops": self.summary.min_hops,
+                "fold_ratio": self.summary.fold_ratio}
 
     def _summary_rows(self, vertices: torch.Tensor) -> torch.Tensor:
         """Whole meshes (B, V, 3) -> their summaries as feature rows (B, 2 K, 3) (see the class doc)."""
@@ -273,6 +272,14 @@ class PartGeometry(nn.Module):
         """(B, P, 3) -> (B, K, M, 3), empty slots zero (use ``mask``)."""
         out = pair_feats[:, self.slots]  # (B, K, M, 3)
         return out * self.mask[None, :, :, None]
+
+
+def reads_summaries(net) -> bool:
+    """Whether a detector (or a :class:`DetectorOnCodes` around one) reads contact summaries: such a detector
+    searches every mesh's close pairs on the CPU, so it is not compiled and is timed on at most
+    :data:`SUMMARY_ROWS` rows."""
+    geometry = getattr(getattr(net, "detector", net), "geometry", None)
+    return geometry is not None and getattr(geometry, "summary", None) is not None
 
 
 def geometry_of_codes(geometry: PartGeometry, space, z_all: torch.Tensor) -> torch.Tensor:

@@ -37,6 +37,7 @@ from neuralcol.nn.part_geometry import (
     detector_inputs,
     load_run_geometry,
     mesh_pair_features,
+    reads_summaries,
 )
 from neuralcol.operating import OPERATING_SETS, calibration_record, choose_set, fold_into, threshold_for
 from neuralcol.rundir import RunDir
@@ -100,8 +101,7 @@ def inference_us(net: CollisionDetector, z: np.ndarray, batch_sizes=(1, 4096), r
     z = np.asarray(z, np.float32)
     if z.ndim != 2 or len(z) == 0:
         raise ValueError(f"inference_us: z must be (N, D) with N >= 1, got {z.shape}")
-    geometry = getattr(getattr(net, "detector", net), "geometry", None)
-    if geometry is not None and getattr(geometry, "summary", None) is not None:
+    if reads_summaries(net):
         batch_sizes = sorted({min(int(b), SUMMARY_ROWS) for b in batch_sizes})
         reps = 1
     cpu = copy.deepcopy(net).cpu().float().eval()

@@ -22,24 +22,11 @@ import torch
 from neuralcol.data.realistic import KINDS, RealisticMeshes, clear_mask, out_of_box
 from neuralcol.handler.alm import ALMSettings
 from neuralcol.handler.resolve import detector_logits, edge_strain, resolve_meshes
-from neuralcol.metrics.detection import detection_metrics, fnr_interval
+from neuralcol.metrics.detection import detection_report
 from neuralcol.nn.part_geometry import code_mesh_logits
 from neuralcol.repair.cap import displacement_stats
 from neuralcol.samples.realistic import evaluation_limit, pool_pd
 from neuralcol.utils.config import as_dict
-
-
-def _skill(m: dict) -> float:
-    maj = m["majority_accuracy"]
-    return float((m["accuracy"] - maj) / (1.0 - maj)) if maj < 1.0 else float("nan")
-
-
-def _detection(pred: np.ndarray, truth: np.ndarray) -> dict:
-    if len(truth) == 0:
-        return {"n": 0}
-    m = detection_metrics(pred, truth)
-    ci = fnr_interval(pred, truth)
-    return {**m, "skill": _skill(m), "n_colliding": int(np.sum(truth)), "fnr_ci95": None if ci is None else list(ci)}
 
 
 def round_trip_pd(space, v: torch.Tensor, pool, desc: str = "labeling round trips",
@@ -127,22 +114,22 @@ def evaluate_realistic(space, net: torch.nn.Module, meshes: RealisticMeshes, pd:
         "n": int(len(pd)), "n_labeled": int(labeled.sum()), "n_clear": int(clear.sum()),
         "clear_eps": float(c["clear_eps"]), "base_rate_clear": float(truth[clear].mean()) if clear.any() else None,
         "kinds": {k: int((meshes.kind == i).sum()) for i, k in enumerate(KINDS)},
-        "detection": _detection(pred[clear], truth[clear]),
-        "detection_all": _detection(pred[labeled], truth[labeled]),
-        "per_kind": {k: _detection(pred[clear & (meshes.kind == i)], truth[clear & (meshes.kind == i)])
+        "detection": detection_report(pred[clear], truth[clear]),
+        "detection_all": detection_report(pred[labeled], truth[labeled]),
+        "per_kind": {k: detection_report(pred[clear & (meshes.kind == i)], truth[clear & (meshes.kind == i)])
                      for i, k in enumerate(KINDS)},
         "round_trip": {
             "agreement": float((truth_rt[both] == truth[both]).mean()) if both.any() else None,
             "collides_lost": float((~truth_rt[both & truth]).mean()) if (both & truth).any() else None,
             "collides_added": float(truth_rt[both & ~truth].mean()) if (both & ~truth).any() else None,
             "out_of_box": float(oob[clear].mean()) if clear.any() else None,
-            "detector_vs_round_trip": _detection(pred[rt_clear], truth_rt[rt_clear]),
-            "detection_in_box": _detection(pred[clear & ~oob], truth[clear & ~oob]),
-            "detection_out_of_box": _detection(pred[clear & oob], truth[clear & oob]),
+            "detector_vs_round_trip": detection_report(pred[rt_clear], truth_rt[rt_clear]),
+            "detection_in_box": detection_report(pred[clear & ~oob], truth[clear & ~oob]),
+            "detection_out_of_box": detection_report(pred[clear & oob], truth[clear & oob]),
         },
     }
     if logit_decoded is not None:  # the same detector on the round trip's decoded geometry, for comparison
-        metrics["detection_decoded"] = _detection(logit_decoded[clear] > 0, truth[clear])
+        metrics["detection_decoded"] = detection_report(logit_decoded[clear] > 0, truth[clear])
     if references:
         metrics["round_trip"]["references"] = {}
         for name, ref in references.items():

@@ -47,7 +47,7 @@ import numpy as np
 import torch
 
 from neuralcol.metrics.detection import detection_metrics
-from neuralcol.nn.part_geometry import SUMMARY_ROWS
+from neuralcol.nn.part_geometry import SUMMARY_ROWS, reads_summaries
 from neuralcol.utils.config import as_dict
 
 FORMS = ("float32", "bfloat16", "bfloat16_checked")  # neuralcol.nn.fast_inference.FORMS
@@ -230,8 +230,7 @@ def measure_speed_accuracy(space, net, test, cfg, labeling=None, metrics: dict |
             notes.append(f"FCL left out: python-fcl is not importable ({e}); pip install python-fcl")
     detectors: dict[tuple[str, str], FastDetector] = {}
     forms = ["float32", *[f for f in c["forms"] if f != "float32"]]  # eager float32: the run's own forward pass
-    geometry = getattr(getattr(net, "detector", None), "geometry", None)
-    summaries = geometry is not None and geometry.summary is not None
+    summaries = reads_summaries(net)
     if summaries:  # its close-pair search runs outside torch: never compiled, timed on fewer codes
         notes.append(f"{family}: reads contact summaries (a CPU search per mesh): eager only, timed on at most "
                      f"{SUMMARY_ROWS} codes")

@@ -40,7 +40,6 @@ def main(argv: list[str] | None = None) -> None:
     a = ap.parse_args(argv)
     run = load_run(a.run_dir)
     space, geo = run.space, run.detector.geometry
-    key = run.metrics["latent"]["cache_key"] if "cache_key" in run.metrics.get("latent", {}) else None
     preds = np.load(Path(a.run_dir) / "realistic_predictions.npz")
     n_test = len(preds["logit"])
     folder = None
@@ -50,7 +49,9 @@ def main(argv: list[str] | None = None) -> None:
                 if len(z["pd"]) == n_test and np.array_equal(z["pd"], preds["pd"]) \
                         and glob.glob(d + "realistic_train_*.npz"):
                     folder = Path(d)
-    assert folder is not None, f"no realistic set of {n_test} meshes in {a.cache}/collision (key {key})"
+    if folder is None:
+        raise SystemExit(f"no realistic test set matching {a.run_dir}'s predictions under {a.cache}/collision: run it "
+                         "with that cache (--cache)")
 
     def load(pattern: str, n: int | None = None):
         """The set of ``pattern`` in the folder (the one of ``n`` meshes where several are)."""

@@ -22,14 +22,4 @@ esac
 OUT=outputs/threshold/rule_$rule
 sets=("$@")
 [ ${#sets[@]} -gt 0 ] || sets=(make_run scape proc_cloth anny_body)
-for d in "${sets[@]}"; do
-  for s in 0 1 2; do
-    case $d in
-      make_run) run_once "$OUT" "make_run_s$s" seed=$s "${GRID[@]}" ;;
-      scape) run_once "$OUT" "scape_s$s" experiment=cpu_scape seed=$s "${GRID[@]}" ;;
-      proc_cloth) run_once "$OUT" "proc_cloth_s$s" experiment=cpu_proc_cloth seed=$s "${GRID[@]}" ;;
-      anny_body) run_once "$OUT" "anny_body_s$s" experiment=cpu_anny_body seed=$s "${BODY[@]}" ;;
-      *) echo "rule_runs.sh: unknown data set '$d'; use make_run, scape, proc_cloth or anny_body" >&2; exit 2 ;;
-    esac
-  done
-done
+run_presets "$OUT" "0 1 2" "${sets[*]}" "${GRID[*]}" "${BODY[*]}"
