@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from neuralcol.active.newton import Projection, newton_project
+from neuralcol.geometry.contact_summary import reusing_neighbours
 from neuralcol.collision.labeler import SUBSET_BOUNDARY
 from neuralcol.metrics.projection import boundary_shares, projection_quality
 from neuralcol.nn.inference import batched_logits
@@ -156,7 +157,8 @@ class ProjectedAcquisition(UniformAcquisition):
         net64 = copy.deepcopy(net).double().eval()
         lo, hi = self.box_lo.to(dev, torch.float64), self.box_hi.to(dev, torch.float64)
         if self.project_codes:
-            proj = newton_project(lambda z: net64(z).logit, z0.to(dev, torch.float64), lo, hi, **self.newton)
+            with reusing_neighbours():  # a detector that reads contact summaries sees the same meshes move
+                proj = newton_project(lambda z: net64(z).logit, z0.to(dev, torch.float64), lo, hi, **self.newton)
         else:
             ones = torch.ones(len(z0), dtype=torch.bool, device=dev)
             zero = torch.zeros(len(z0), dtype=torch.long, device=dev)

@@ -23,6 +23,9 @@ Symbols: B or N meshes, V vertices, F faces, K sub-domains, S = len(SUMMARIES) s
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 import numpy as np
 import torch
 from numba import njit
@@ -31,73 +34,370 @@ from neuralcol.geometry.contact_pairs import hop_neighbourhood
 
 SUMMARIES = ("log_count", "min_ratio", "min_dist", "min_offset")
 
+_REUSING = [0]  # how many reusing_neighbours() blocks are open
+
+
+@contextmanager
+def reusing_neighbours() -> Iterator[None]:
+    """Within this block the summaries keep each mesh's candidate pairs and reuse them for meshes that come back
+    barely moved (:class:`NeighbourLists`): for optimisers (the handler, the projector) that ask about the same
+    meshes again and again. Same results, less time; outside it every mesh is searched anew (nothing is kept)."""
+    _REUSING[0] += 1
+    try:
+        yield
+    finally:
+        _REUSING[0] -= 1
+
 
 @njit(cache=True)
-def _close_pairs_kernel(v, rest, radius, fold_ratio, near_ptr, near_idx):  # pragma: no cover (compiled)
-    """Close pairs (i < j) of one mesh: a uniform grid of cell ``radius``, then the distance, the fold rule and the
-    hop rule (``near_idx[near_ptr[i]:near_ptr[i + 1]]``, sorted, the vertices near i)."""
+def _is_near(near_ptr, near_idx, i, j):  # pragma: no cover (compiled)
+    """Whether j is among the vertices near i (``near_idx[near_ptr[i]:near_ptr[i + 1]]``, sorted): a binary search."""
+    lo, hi = near_ptr[i], near_ptr[i + 1]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if near_idx[mid] < j:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo < near_ptr[i + 1] and near_idx[lo] == j
+
+
+@njit(cache=True)
+def _close_pairs_kernel(v, rest, radius, fold_ratio, near_ptr, near_idx, slack=0.0):  # pragma: no cover (compiled)
+    """Close pairs (i < j) of one mesh: a hashed uniform grid of cell ``radius`` (memory O(V) however far the
+    vertices spread), each vertex against its own cell and the 13 after it, then the distance, the fold rule
+    (loosened by ``slack``: ``d < fold_ratio d_rest + slack``) and the hop rule
+    (``near_idx[near_ptr[i]:near_ptr[i + 1]]``, sorted, the vertices near i)."""
     n = v.shape[0]
     lo = v[0].copy()
     for i in range(n):
         for c in range(3):
             lo[c] = min(lo[c], v[i, c])
+    size = 1
+    while size < 2 * n:
+        size *= 2
+    mask = size - 1
     cell = np.empty((n, 3), np.int64)
-    dims = np.ones(3, np.int64)
+    bucket = np.empty(n, np.int64)
     for i in range(n):
         for c in range(3):
             cell[i, c] = int((v[i, c] - lo[c]) / radius)
-            dims[c] = max(dims[c], cell[i, c] + 1)
-    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
-    n_cells = dims[0] * dims[1] * dims[2]
-    start = np.zeros(n_cells + 1, np.int64)  # counting sort: the vertices of cell k are order[start[k]:start[k + 1]]
+        bucket[i] = ((cell[i, 0] * 73856093) ^ (cell[i, 1] * 19349663) ^ (cell[i, 2] * 83492791)) & mask
+    start = np.zeros(size + 1, np.int64)  # counting sort by bucket: bucket h holds sorted slots start[h]:start[h + 1]
     for i in range(n):
-        start[key[i] + 1] += 1
-    for k in range(n_cells):
-        start[k + 1] += start[k]
+        start[bucket[i] + 1] += 1
+    for h in range(size):
+        start[h + 1] += start[h]
     fill = start[:-1].copy()
     order = np.empty(n, np.int64)
     for i in range(n):
-        order[fill[key[i]]] = i
-        fill[key[i]] += 1
-    r2, f2 = radius * radius, fold_ratio * fold_ratio
+        order[fill[bucket[i]]] = i
+        fill[bucket[i]] += 1
+    for h in range(size):  # within a bucket, its cells one after another (a bucket rarely holds two)
+        for s in range(start[h] + 1, start[h + 1]):
+            x = order[s]
+            t = s
+            while t > start[h] and (cell[order[t - 1], 0], cell[order[t - 1], 1], cell[order[t - 1], 2]) > (
+                    cell[x, 0], cell[x, 1], cell[x, 2]):
+                order[t] = order[t - 1]
+                t -= 1
+            order[t] = x
+    pos = np.empty((n, 3))  # positions and cells in sorted order: the inner loops read memory in a row
+    sc = np.empty((n, 3), np.int64)
+    for s in range(n):
+        for c in range(3):
+            pos[s, c] = v[order[s], c]
+            sc[s, c] = cell[order[s], c]
+    r2 = radius * radius
     cap = 4 * n
     out = np.empty((cap, 2), np.int64)
     m = 0
-    for i in range(n):
-        ci0, ci1, ci2 = cell[i, 0], cell[i, 1], cell[i, 2]
-        for o in range(13, 27):  # i's own cell and the 13 after it: each pair of cells once
+    a0 = 0
+    while a0 < n:  # the run a0:a1 of one cell, against its own cell and the 13 after it (each pair of cells once)
+        ci0, ci1, ci2 = sc[a0, 0], sc[a0, 1], sc[a0, 2]
+        a1 = a0 + 1
+        while a1 < n and sc[a1, 0] == ci0 and sc[a1, 1] == ci1 and sc[a1, 2] == ci2:
+            a1 += 1
+        for o in range(13, 27):
             a, b, c = ci0 + o // 9 - 1, ci1 + (o // 3) % 3 - 1, ci2 + o % 3 - 1
-            if a < 0 or b < 0 or c < 0 or a >= dims[0] or b >= dims[1] or c >= dims[2]:
-                continue
-            k = (a * dims[1] + b) * dims[2] + c
-            for s in range(start[k], start[k + 1]):
-                j = order[s]
-                if o == 13 and j <= i:
-                    continue
-                d2 = 0.0
-                for e in range(3):
-                    t = v[j, e] - v[i, e]
-                    d2 += t * t
-                if d2 >= r2:
-                    continue
-                q2 = 0.0
-                for e in range(3):
-                    u = rest[j, e] - rest[i, e]
-                    q2 += u * u
-                if d2 >= f2 * q2:
-                    continue
-                lo_n, hi_n = near_ptr[i], near_ptr[i + 1]
-                at = lo_n + np.searchsorted(near_idx[lo_n:hi_n], j)
-                if at < hi_n and near_idx[at] == j:
-                    continue
-                if m == cap:
-                    grown = np.empty((2 * cap, 2), np.int64)
-                    grown[:m] = out[:m]
-                    out, cap = grown, 2 * cap
-                out[m, 0] = min(i, j)
-                out[m, 1] = max(i, j)
-                m += 1
+            h = ((a * 73856093) ^ (b * 19349663) ^ (c * 83492791)) & mask
+            b0 = start[h]
+            while b0 < start[h + 1] and (sc[b0, 0] != a or sc[b0, 1] != b or sc[b0, 2] != c):
+                b0 += 1
+            b1 = b0
+            while b1 < start[h + 1] and sc[b1, 0] == a and sc[b1, 1] == b and sc[b1, 2] == c:
+                b1 += 1
+            for si in range(a0, a1):
+                i = order[si]
+                for sj in range(si + 1 if o == 13 else b0, b1):
+                    t0 = pos[sj, 0] - pos[si, 0]
+                    t1 = pos[sj, 1] - pos[si, 1]
+                    t2 = pos[sj, 2] - pos[si, 2]
+                    d2 = t0 * t0 + t1 * t1 + t2 * t2
+                    if d2 >= r2:
+                        continue
+                    j = order[sj]
+                    u0 = rest[j, 0] - rest[i, 0]
+                    u1 = rest[j, 1] - rest[i, 1]
+                    u2 = rest[j, 2] - rest[i, 2]
+                    lim = fold_ratio * np.sqrt(u0 * u0 + u1 * u1 + u2 * u2) + slack
+                    if d2 >= lim * lim:
+                        continue
+                    if _is_near(near_ptr, near_idx, i, j):
+                        continue
+                    if m == cap:
+                        grown = np.empty((2 * cap, 2), np.int64)
+                        grown[:m] = out[:m]
+                        out, cap = grown, 2 * cap
+                    out[m, 0] = min(i, j)
+                    out[m, 1] = max(i, j)
+                    m += 1
+        a0 = a1
     return out[:m]
+
+
+@njit(cache=True)
+def _normals_kernel(v, faces):  # pragma: no cover (compiled)
+    """(V, 3) unit area-weighted vertex normals of one mesh, as :func:`vertex_normals_np`."""
+    n = np.zeros_like(v)
+    for f in range(faces.shape[0]):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        e10, e11, e12 = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+        e20, e21, e22 = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+        x = e11 * e22 - e12 * e21
+        y = e12 * e20 - e10 * e22
+        z = e10 * e21 - e11 * e20
+        n[a, 0] += x
+        n[a, 1] += y
+        n[a, 2] += z
+        n[b, 0] += x
+        n[b, 1] += y
+        n[b, 2] += z
+        n[c, 0] += x
+        n[c, 1] += y
+        n[c, 2] += z
+    for i in range(v.shape[0]):
+        length = np.sqrt(n[i, 0] ** 2 + n[i, 1] ** 2 + n[i, 2] ** 2)
+        for c in range(3):
+            n[i, c] = n[i, c] / length if length > 0 else 0.0
+    return n
+
+
+@njit(cache=True)
+def _summarize_pairs(v, pr, rest, radius, fold_ratio, faces, partition, clip, vals, arg):  # pragma: no cover
+    """One mesh's summaries from pairs ``pr`` (P, 2) into ``vals`` (K, 4) and ``arg`` (K, 3, 2) (see
+    :func:`_summaries_kernel`); the pairs are checked against the distance and fold rules first, so candidates
+    found with a looser rule (a neighbour list with a skin) give the same result as the close pairs themselves."""
+    n_parts = vals.shape[0]
+    for k in range(n_parts):
+        vals[k, 0] = 0.0
+        vals[k, 1] = 1.0
+        vals[k, 2] = 1.0
+        vals[k, 3] = clip
+        for s in range(3):
+            arg[k, s, 0] = -1
+            arg[k, s, 1] = -1
+    nrm = np.empty((0, 3))
+    for p in range(pr.shape[0]):
+        i, j = pr[p, 0], pr[p, 1]
+        d2 = 0.0
+        q2 = 0.0
+        for e in range(3):
+            t = v[j, e] - v[i, e]
+            u = rest[j, e] - rest[i, e]
+            d2 += t * t
+            q2 += u * u
+        lim = fold_ratio * np.sqrt(q2)
+        if d2 >= radius * radius or d2 >= lim * lim:
+            continue
+        if nrm.shape[0] == 0:
+            nrm = _normals_kernel(v, faces)
+        oi = 0.0
+        oj = 0.0
+        for e in range(3):
+            t = v[j, e] - v[i, e]
+            oi += t * nrm[i, e]
+            oj -= t * nrm[j, e]
+        d = np.sqrt(d2)
+        ratio = d / np.sqrt(q2)
+        dist = d / radius
+        if oi <= oj:
+            off, a, b = oi, i, j
+        else:
+            off, a, b = oj, j, i
+        off = min(max(off / radius, -clip), clip)
+        for side in (i, j):
+            k = partition[side]
+            vals[k, 0] += 1.0
+            if ratio < vals[k, 1]:
+                vals[k, 1] = ratio
+                arg[k, 0, 0] = i
+                arg[k, 0, 1] = j
+            if dist < vals[k, 2]:
+                vals[k, 2] = dist
+                arg[k, 1, 0] = i
+                arg[k, 1, 1] = j
+            if off < vals[k, 3]:
+                vals[k, 3] = off
+                arg[k, 2, 0] = a
+                arg[k, 2, 1] = b
+    for k in range(n_parts):
+        vals[k, 0] = np.log1p(vals[k, 0])
+
+
+@njit(cache=True)
+def _summaries_kernel(vs, rest, radius, fold_ratio, near_ptr, near_idx, faces, partition, n_parts,
+                      clip):  # pragma: no cover (compiled)
+    """The summaries of meshes (B, V, 3) in one pass over each mesh's close pairs: values (B, K, 4) as
+    :meth:`ContactSummary.summarize` gives them, and for the three minima the pair that attains each, (B, K, 3, 2)
+    (-1 where a sub-domain has no close pair); for ``min_offset`` the pair is ordered (a, b) with the offset
+    ``(x_b - x_a) . n_a``, the normal read at a."""
+    vals = np.empty((vs.shape[0], n_parts, 4))
+    arg = np.empty((vs.shape[0], n_parts, 3, 2), np.int64)
+    for m in range(vs.shape[0]):
+        pr = _close_pairs_kernel(vs[m], rest, radius, fold_ratio, near_ptr, near_idx)
+        _summarize_pairs(vs[m], pr, rest, radius, fold_ratio, faces, partition, clip, vals[m], arg[m])
+    return vals, arg
+
+
+@njit(cache=True)
+def _summaries_of_candidates(vs, cand, cand_ptr, rest, radius, fold_ratio, faces, partition, n_parts,
+                             clip):  # pragma: no cover (compiled)
+    """:func:`_summaries_kernel` with each mesh's pairs taken from candidates, mesh m's ``cand[cand_ptr[m]:
+    cand_ptr[m + 1]]`` (a superset of its close pairs)."""
+    vals = np.empty((vs.shape[0], n_parts, 4))
+    arg = np.empty((vs.shape[0], n_parts, 3, 2), np.int64)
+    for m in range(vs.shape[0]):
+        _summarize_pairs(vs[m], cand[cand_ptr[m]:cand_ptr[m + 1]], rest, radius, fold_ratio, faces, partition,
+                         clip, vals[m], arg[m])
+    return vals, arg
+
+
+@njit(cache=True)
+def _match_kernel(vs, meshes, sigs, sig_idx, n_stored, guess, half2):  # pragma: no cover (compiled)
+    """For each mesh of ``vs`` (B, V, 3), a stored mesh (of the first ``n_stored``) whose every vertex lies within
+    ``sqrt(half2)`` of it, or -1: first the guess, then the one nearest on the signature vertices."""
+    b, n = vs.shape[0], vs.shape[1]
+    pick = np.full(b, -1, np.int64)
+    for m in range(b):
+        for attempt in range(2):
+            e = guess[m] if attempt == 0 else -1
+            if attempt == 0 and (e < 0 or e >= n_stored):
+                continue
+            if attempt == 1:
+                best = half2
+                for c in range(n_stored):
+                    gap = 0.0
+                    for q in range(sig_idx.shape[0]):
+                        w = sig_idx[q]
+                        d2 = ((vs[m, w, 0] - sigs[c, 3 * q]) ** 2 + (vs[m, w, 1] - sigs[c, 3 * q + 1]) ** 2
+                              + (vs[m, w, 2] - sigs[c, 3 * q + 2]) ** 2)
+                        gap = max(gap, d2)
+                        if gap >= best:
+                            break
+                    if gap < best:
+                        best, e = gap, c
+                if e < 0:
+                    break
+            ok = True
+            for i in range(n):
+                d2 = ((vs[m, i, 0] - meshes[e, i, 0]) ** 2 + (vs[m, i, 1] - meshes[e, i, 1]) ** 2
+                      + (vs[m, i, 2] - meshes[e, i, 2]) ** 2)
+                if d2 >= half2:
+                    ok = False
+                    break
+            if ok:
+                pick[m] = e
+                break
+    return pick
+
+
+class NeighbourLists:
+    """Candidate pairs kept for meshes that come back barely moved: a neighbour list with a skin (a Verlet list).
+
+    An optimiser (the handler, the projector) asks for the summaries of the same few hundred meshes again and
+    again, each moved a little. For a mesh ``x`` the list keeps ``x`` and every pair that passes the closeness
+    rule loosened by ``skin`` (distance below ``radius + skin``, below ``fold_ratio`` times the rest distance plus
+    ``skin``). A later mesh ``y`` whose every vertex lies within ``skin / 2`` of ``x``'s changes each pair's
+    distance by less than ``skin``, so its close pairs are among those candidates: they are filtered by the exact
+    rule instead of searched anew. The answer is the same as a fresh search; only the time differs.
+
+    Args:
+        summary: the :class:`ContactSummary` served. skin: in units of its radius.
+        max_bytes: memory kept for the stored meshes and their candidates (the oldest unused go first).
+    """
+
+    n_signature = 32  # vertices compared first to find the stored mesh nearest a new one
+
+    def __init__(self, summary: "ContactSummary", skin: float = 0.5, max_bytes: int = 64 << 20):
+        self.summary, self.skin = summary, float(skin) * summary.radius
+        n = len(summary.rest)
+        self.capacity = max(1, min(1024, int(max_bytes) // max(1, 40 * n)))
+        self._sig = np.unique(np.linspace(0, n - 1, min(n, self.n_signature)).astype(np.int64))
+        self.clear()
+
+    def clear(self) -> None:
+        n = len(self.summary.rest)
+        self._meshes = np.empty((0, n, 3))  # grown by doubling up to the capacity
+        self._sigs = np.empty((0, len(self._sig) * 3))
+        self._cands: list[np.ndarray] = []
+        self._used = np.empty(0, np.int64)
+        self._last = np.empty(0, np.int64)  # the stored mesh each row of the last call used
+        self._clock = 0
+        self.searches = self.reuses = 0
+
+    def __getstate__(self):  # copies and pickles start empty (the stored meshes are a cache)
+        state = self.__dict__.copy()
+        n = len(self.summary.rest)
+        state.update(_meshes=np.empty((0, n, 3)), _sigs=np.empty((0, len(self._sig) * 3)), _cands=[],
+                     _used=np.empty(0, np.int64), _last=np.empty(0, np.int64), _clock=0, searches=0, reuses=0)
+        return state
+
+    def candidates(self, vs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Meshes (B, V, 3) -> (candidates (Q, 2), offsets (B + 1,)): mesh m's candidates are
+        ``candidates[offsets[m]:offsets[m + 1]]``, stored ones where it lies within ``skin / 2`` of a stored mesh,
+        else found by a fresh search (and stored)."""
+        s, half2 = self.summary, (self.skin / 2) ** 2
+        self._clock += 1
+        b, c = len(vs), len(self._cands)
+        guess = np.full(b, -1, np.int64)  # first the mesh the same row used last time
+        guess[:min(b, len(self._last))] = self._last[:b]
+        pick = _match_kernel(vs, self._meshes, self._sigs, self._sig, c, guess, half2)
+        found = []
+        for m in range(b):
+            if pick[m] >= 0:
+                self._used[pick[m]] = self._clock
+                found.append(self._cands[pick[m]])
+                self.reuses += 1
+                continue
+            cand = _close_pairs_kernel(vs[m], s.rest, s.radius + self.skin, s.fold_ratio, s._near_ptr,
+                                       s._near_idx, self.skin)
+            found.append(cand)
+            pick[m] = self._store(vs[m], cand)
+            self.searches += 1
+        self._last = pick
+        offsets = np.concatenate([[0], np.cumsum([len(f) for f in found])]).astype(np.int64)
+        cand = np.concatenate(found) if found else np.zeros((0, 2), np.int64)
+        return cand.astype(np.int64, copy=False), offsets
+
+    def _store(self, mesh: np.ndarray, cand: np.ndarray) -> int:
+        """Store a mesh and its candidates; returns its index."""
+        c = len(self._cands)
+        if c >= self.capacity:  # the one unused longest makes room
+            e = int(np.argmin(self._used))
+            self._cands[e] = cand
+        else:
+            if c == len(self._meshes):
+                grow = min(self.capacity, max(16, 2 * c))
+                self._meshes = np.concatenate([self._meshes, np.empty((grow - c, *mesh.shape))])
+                self._sigs = np.concatenate([self._sigs, np.empty((grow - c, self._sigs.shape[1]))])
+                self._used = np.concatenate([self._used, np.zeros(grow - c, np.int64)])
+            e = c
+            self._cands.append(cand)
+        self._meshes[e] = mesh
+        self._sigs[e] = mesh[self._sig].ravel()
+        self._used[e] = self._clock
+        return e
 
 
 def vertex_normals_np(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -141,6 +441,7 @@ class ContactSummary:
         corner = np.argsort(self.faces.ravel(), kind="stable")  # the faces around each vertex, CSR
         self._vf_idx = corner // 3
         self._vf_ptr = np.concatenate([[0], np.cumsum(np.bincount(self.faces.ravel(), minlength=n))])
+        self.neighbour_lists = NeighbourLists(self)  # candidates reused inside reusing_neighbours()
 
     @property
     def n_summaries(self) -> int:
@@ -187,38 +488,55 @@ class ContactSummary:
         return np.stack([np.log1p(count), ratio, dist, offset], axis=1)
 
     def summarize_torch(self, vertices: torch.Tensor) -> torch.Tensor:
-        """(B, V, 3) -> (B, K, S) summaries, differentiable in the vertices: each mesh's close pairs are found
-        without gradients, then the distances, ratios and offsets of all meshes' pairs are taken in torch at once
-        (the count is piecewise constant; each minimum passes its gradient to its pair). Equal to
+        """(B, V, 3) -> (B, K, S) summaries, differentiable in the vertices. A compiled pass over each mesh's
+        close pairs gives the values and, for each minimum, the pair that attains it; with gradients, those pairs
+        alone (at most 3 K a mesh, of the thousands of close pairs a colliding mesh has) are measured again in
+        torch, so each minimum passes its gradient to its pair (the count is piecewise constant). Equal to
         :meth:`summarize` up to round-off."""
         if vertices.ndim != 3 or tuple(vertices.shape[1:]) != self.rest.shape:
             raise ValueError(f"vertices have shape {tuple(vertices.shape)}, expected (B, {len(self.rest)}, 3)")
-        dtype, device = vertices.dtype, vertices.device
-        b, k = len(vertices), self.n_parts
-        found = [self.close_pairs(v) for v in vertices.detach().cpu().numpy()]
-        mesh = torch.as_tensor(np.repeat(np.arange(b), [len(p) for p in found]), device=device)
-        pr = torch.as_tensor(np.concatenate(found) if found else np.zeros((0, 2), np.int64), device=device)
-        count = torch.zeros(b * k, dtype=dtype, device=device)
-        ratio = torch.ones(b * k, dtype=dtype, device=device)
-        dist = torch.ones(b * k, dtype=dtype, device=device)
-        offset = torch.full((b * k,), self.clip, dtype=dtype, device=device)
-        if len(pr):
-            rest = torch.as_tensor(self.rest, dtype=dtype, device=device)
-            partition = torch.as_tensor(self.partition, device=device)
-            i, j = pr[:, 0], pr[:, 1]
-            delta = vertices[mesh, j] - vertices[mesh, i]  # (Q, 3)
-            d = delta.norm(dim=1)
-            d_rest = (rest[j] - rest[i]).norm(dim=1)
-            normal_of = self._pair_normals(vertices, mesh.cpu().numpy(), pr.cpu().numpy())
-            off = torch.minimum((delta * normal_of[0]).sum(1), (-delta * normal_of[1]).sum(1))
-            off = (off / self.radius).clamp(-self.clip, self.clip)
-            for side in (i, j):
-                slot = mesh * k + partition[side]
-                count = count.index_add(0, slot, torch.ones_like(d))
-                ratio = ratio.scatter_reduce(0, slot, d / d_rest, "amin")
-                dist = dist.scatter_reduce(0, slot, d / self.radius, "amin")
-                offset = offset.scatter_reduce(0, slot, off, "amin")
-        return torch.stack([torch.log1p(count), ratio, dist, offset], dim=1).view(b, k, len(SUMMARIES))
+        v = np.ascontiguousarray(vertices.detach().cpu().numpy(), dtype=np.float64)
+        if not np.isfinite(v).all():
+            raise ValueError("vertices hold NaN or infinite values")
+        if _REUSING[0]:  # an optimiser's call: the same meshes come back, moved a little
+            cand, offsets = self.neighbour_lists.candidates(v)
+            vals, arg = _summaries_of_candidates(v, cand, offsets, self.rest, self.radius, self.fold_ratio,
+                                                 self.faces, self.partition, self.n_parts, self.clip)
+        else:
+            vals, arg = _summaries_kernel(v, self.rest, self.radius, self.fold_ratio, self._near_ptr,
+                                          self._near_idx, self.faces, self.partition, self.n_parts, self.clip)
+        out = torch.as_tensor(vals, dtype=vertices.dtype, device=vertices.device)
+        if not vertices.requires_grad:
+            return out
+        return self._attach_gradients(vertices, out, arg)
+
+    def _attach_gradients(self, vertices: torch.Tensor, out: torch.Tensor, arg: np.ndarray) -> torch.Tensor:
+        """``out`` (B, K, 4) with its three minima measured again, differentiably, at the pairs ``arg``
+        (B, K, 3, 2) that attain them."""
+        b, k, n_sum = out.shape
+        device, flat = vertices.device, out.reshape(b * k, n_sum)
+        columns = [flat[:, 0]]
+        for s, col in enumerate((1, 2, 3)):
+            pairs = arg[:, :, s].reshape(b * k, 2)
+            slot = np.flatnonzero(pairs[:, 0] >= 0)
+            if not len(slot):
+                columns.append(flat[:, col])
+                continue
+            mesh = slot // k
+            pr = pairs[slot]
+            mesh_t = torch.as_tensor(mesh, device=device)
+            i, j = (torch.as_tensor(pr[:, q], device=device) for q in range(2))
+            delta = vertices[mesh_t, j] - vertices[mesh_t, i]
+            if col == 3:  # (x_b - x_a) . n_a over radius, clipped
+                normal = self._pair_normals(vertices, mesh, pr)[0]
+                value = ((delta * normal).sum(1) / self.radius).clamp(-self.clip, self.clip)
+            elif col == 2:
+                value = delta.norm(dim=1) / self.radius
+            else:
+                rest = torch.as_tensor(self.rest, dtype=vertices.dtype, device=device)
+                value = delta.norm(dim=1) / (rest[j] - rest[i]).norm(dim=1)
+            columns.append(flat[:, col].index_put((torch.as_tensor(slot, device=device),), value))
+        return torch.stack(columns, dim=1).view(b, k, n_sum)
 
     def _pair_normals(self, vertices: torch.Tensor, mesh: np.ndarray, pr: np.ndarray) -> tuple[torch.Tensor, ...]:
         """The unit area-weighted vertex normals (differentiable) at both ends of every pair, (Q, 3) each: only

@@ -16,6 +16,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from neuralcol.geometry.contact_summary import reusing_neighbours
 from neuralcol.handler.alm import ALMSettings, Resolution, alm_resolve
 from neuralcol.handler.objectives import LatentObjective
 from neuralcol.nn.inference import batched_logits
@@ -53,7 +54,8 @@ def handle_codes(net: torch.nn.Module, z_user: torch.Tensor, box_lo: torch.Tenso
     z_user = z_user.double()
     objective = objective or LatentObjective(z_user.to(dev))
     parts = []
-    with progress_bar(total=len(z_user), desc=desc or "", unit="code", disable=desc is None) as bar:
+    with progress_bar(total=len(z_user), desc=desc or "", unit="code", disable=desc is None) as bar, \
+            reusing_neighbours():  # a detector that reads contact summaries sees the same meshes move
         for start in range(0, len(z_user), batch_size):
             rows = torch.arange(start, min(start + batch_size, len(z_user)), device=dev)
             res = alm_resolve(lambda z, idx, rows=rows: objective(z, rows[idx]), lambda z: net(z).logit,
