@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from neuralcol.active.newton import Projection, newton_project
-from neuralcol.geometry.contact_summary import reusing_neighbours
 from neuralcol.collision.labeler import SUBSET_BOUNDARY
+from neuralcol.geometry.contact_summary import reusing_neighbours
 from neuralcol.metrics.projection import boundary_shares, projection_quality
 from neuralcol.nn.inference import batched_logits
 from neuralcol.samples.oracle import LatentOracle

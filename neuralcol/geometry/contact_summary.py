@@ -329,7 +329,7 @@ class NeighbourLists:
 
     n_signature = 32  # vertices compared first to find the stored mesh nearest a new one
 
-    def __init__(self, summary: "ContactSummary", skin: float = 0.5, max_bytes: int = 64 << 20):
+    def __init__(self, summary: ContactSummary, skin: float = 0.5, max_bytes: int = 64 << 20):
         self.summary, self.skin = summary, float(skin) * summary.radius
         n = len(summary.rest)
         self.capacity = max(1, min(1024, int(max_bytes) // max(1, 40 * n)))
