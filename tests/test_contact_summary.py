@@ -9,7 +9,13 @@ import torch
 import trimesh
 
 from neuralcol.geometry.contact_pairs import hop_neighbourhood
-from neuralcol.geometry.contact_summary import SUMMARIES, ContactSummary, reusing_neighbours, vertex_normals_np
+from neuralcol.geometry.contact_summary import (
+    SUMMARIES,
+    ContactSummary,
+    farthest_point_sample,
+    reusing_neighbours,
+    vertex_normals_np,
+)
 
 
 def _bent_sheet(n: int = 12, bend: float = 0.0):
@@ -179,3 +185,23 @@ def test_a_vertex_thrown_far_away_costs_no_memory():
     far[0] = [3e8, -3e8, 3e8]
     want = {tuple(p) for p in s.close_pairs(x) if 0 not in p}
     assert want and {tuple(p) for p in s.close_pairs(far)} == want
+
+
+def test_a_vertex_sample_keeps_the_pairs_among_its_vertices():
+    """With max_vertices the pairs are the full search's pairs whose two vertices are in the sample, spread evenly
+    (farthest-point sampling: no point of the rest mesh far from the sample)."""
+    body = trimesh.creation.capsule(height=1.0, radius=0.3, count=[24, 24])
+    rest, faces = np.asarray(body.vertices), np.asarray(body.faces)
+    x = rest * np.array([1.0, 1.0, 0.08])
+    full = ContactSummary(rest, faces, np.zeros(len(rest), np.int64), 1, radius=0.06)
+    part = ContactSummary(rest, faces, np.zeros(len(rest), np.int64), 1, radius=0.06, max_vertices=200)
+    assert len(part.sample) == 200 and np.all(np.diff(part.sample) > 0)
+    keep = np.isin(full.close_pairs(x), part.sample).all(1)
+    want = {tuple(p) for p in full.close_pairs(x)[keep]}
+    assert len(want) > 20 and {tuple(p) for p in part.close_pairs(x)} == want
+    np.testing.assert_allclose(part.summarize_torch(torch.tensor(x[None])).numpy(), part.summarize(x[None]),
+                               rtol=1e-6)
+    gap = np.linalg.norm(rest[:, None] - rest[part.sample][None], axis=2).min(1)
+    spacing = np.linalg.norm(rest[faces[:, 0]] - rest[faces[:, 1]], axis=1).mean()
+    assert gap.max() < 3 * spacing * np.sqrt(len(rest) / 200)
+    assert np.array_equal(farthest_point_sample(rest, 10**6), np.arange(len(rest)))

@@ -49,10 +49,10 @@ def _codes(n: int, seed: int = 0) -> torch.Tensor:
     return torch.cat([0.85 + 0.2 * torch.rand(n, 1, generator=g), 0.5 * torch.rand(n, 1, generator=g) - 0.25], 1)
 
 
-def _geometry(space, summaries: bool = True):
+def _geometry(space, summaries: bool = True, summary_vertices: int | None = None):
     meshes = space.decode(_codes(40).double()).numpy()
     return choose_geometry(space, meshes, None, radius=SETTINGS["radius"], min_hops=2, fold_ratio=0.5,
-                           per_part=4, summaries=summaries)
+                           per_part=4, summaries=summaries, summary_vertices=summary_vertices)
 
 
 def test_summary_rows_follow_the_chosen_pairs_and_fill_two_slots_per_subdomain():
@@ -97,10 +97,12 @@ def test_a_detector_with_summaries_saves_loads_and_runs_eagerly_in_the_fast_form
 
     torch.manual_seed(2)
     space = FoldSpace()
-    det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry(space)).eval()
+    det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry(space, summary_vertices=90)).eval()
     save_detector(tmp_path / "d.pt", det, {"net": {"state_dim": 6, "hidden": 8}}, {"name": "active"}, 1.0)
     back, meta = load_detector(tmp_path / "d.pt")
-    assert meta["geometry"]["summaries"] == {"min_hops": 2, "fold_ratio": 0.5}
+    assert meta["geometry"]["summaries"] == {"min_hops": 2, "fold_ratio": 0.5, "max_vertices": 90}
+    assert np.array_equal(back.geometry.summary.sample, det.geometry.summary.sample)
+    assert len(back.geometry.summary.sample) == 90
     z = _codes(30, seed=3)
     with torch.no_grad():
         want = DetectorOnCodes(det, space)(z).logit
@@ -114,10 +116,10 @@ def test_a_detector_with_summaries_saves_loads_and_runs_eagerly_in_the_fast_form
 def test_run_geometry_with_summaries_reloads_as_the_same_geometry(tmp_path):
     space = FoldSpace()
     z = _codes(40).numpy()
-    cfg = {**SETTINGS, "select_codes": 100, "summaries": True}
+    cfg = {**SETTINGS, "select_codes": 100, "summaries": True, "summary_vertices": 100}
     geo = choose_run_geometry(space, z, np.zeros(len(z), bool), None, cfg, tmp_path / "geometry.npz")
     back = load_run_geometry(space, tmp_path / "geometry.npz")
-    assert back.n_pairs == geo.n_pairs and back.summary is not None
+    assert back.n_pairs == geo.n_pairs and back.summary is not None and back.summary.max_vertices == 100
     v = space.decode(_codes(5, seed=4).double())
     torch.testing.assert_close(back.pair_features(v), geo.pair_features(v))
     plain = choose_run_geometry(space, z, np.zeros(len(z), bool), None, {**cfg, "summaries": False},

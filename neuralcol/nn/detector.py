@@ -418,7 +418,8 @@ def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, p
              {"pool": net.geometry_pool, "hidden": int(net.geometry_hidden), "radius": net.geometry.contact.radius,
               "clip": net.geometry.contact.clip, "fixed_slots": int(net.geometry.n_fixed_slots),
               "summaries": None if net.geometry.summary is None else
-              {"min_hops": net.geometry.summary.min_hops, "fold_ratio": net.geometry.summary.fold_ratio}}}
+              {"min_hops": net.geometry.summary.min_hops, "fold_ratio": net.geometry.summary.fold_ratio,
+               "max_vertices": net.geometry.summary.max_vertices}}}
     blob = {"state": net.state_dict(), **plain_values(facts, Path(path).name)}
     with atomic_path(path) as tmp:
         torch.save(blob, tmp)

@@ -71,6 +71,9 @@ def config_problems(cfg: DictConfig) -> list[str]:
         need("detector.geometry.pool", lambda v: v in ("linear", "deepsets"), "use linear or deepsets")
         if _get(cfg, "detector.geometry.summaries") is not None:
             need("detector.geometry.summaries", lambda v: isinstance(v, bool), "use true or false")
+        if _get(cfg, "detector.geometry.summary_vertices") is not None:
+            need("detector.geometry.summary_vertices", lambda v: is_int(v) and v >= 2,
+                 "must be an integer >= 2, or null for every vertex")
     threads = _get(cfg, "threads")
     if threads is not None and not (is_int(threads) and threads >= 1):  # null: the machine's default
         problems.append(f"threads={threads!r}: must be an integer >= 1 (1, the default, gives the same numbers on "
