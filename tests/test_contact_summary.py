@@ -144,24 +144,27 @@ def test_grid_search_finds_the_pairs_a_kdtree_finds_on_a_crumpled_body():
         s.close_pairs(np.full_like(x, np.nan))
 
 
-def test_gradients_match_finite_differences_for_every_summary():
-    """The minima's gradients (distance, ratio and the signed offset through the vertex normals) against central
-    differences, on a fold with noise (no ties, the same close pairs within the step)."""
+@pytest.mark.parametrize("smooth", [False, True])
+def test_gradients_match_finite_differences_for_every_summary(smooth):
+    """The minima's gradients (distance, ratio and the signed offset through the vertex normals) and, in the smooth
+    form, the weighted count's against central differences, on a fold with noise (no ties, the same close pairs
+    within the step)."""
     rest, x, faces, partition = _bent_sheet(n=8, bend=3.1)
     x = x + 0.004 * np.random.default_rng(0).normal(size=x.shape)
-    s = ContactSummary(rest, faces, partition, 2, radius=0.3)
+    s = ContactSummary(rest, faces, partition, 2, radius=0.3, smooth=smooth)
     t = torch.tensor(x[None], dtype=torch.float64, requires_grad=True)
     assert s.close_pairs(x).shape[0] > 10
-    for col in (1, 2, 3):
+    for col in (0, 1, 2, 3) if smooth else (1, 2, 3):
         assert torch.autograd.gradcheck(lambda v, col=col: s.summarize_torch(v)[..., col], (t,), eps=1e-7,
                                         atol=1e-5)
 
 
-def test_reused_neighbour_lists_give_what_a_fresh_search_gives():
+@pytest.mark.parametrize("smooth", [False, True])
+def test_reused_neighbour_lists_give_what_a_fresh_search_gives(smooth):
     """Inside reusing_neighbours() meshes that barely moved take their stored candidates, meshes that moved far are
     searched anew; every summary equals the numpy form's fresh search."""
     rest, x, faces, partition = _bent_sheet(bend=3.0)
-    s = ContactSummary(rest, faces, partition, 2, radius=0.3)
+    s = ContactSummary(rest, faces, partition, 2, radius=0.3, smooth=smooth)
     rng = np.random.default_rng(1)
     steps = [x + 0.02 * rng.normal(size=x.shape) for _ in range(2)]  # small moves: reused
     steps.append(_bent_sheet(bend=3.3)[1])  # a large one: searched
@@ -172,7 +175,8 @@ def test_reused_neighbour_lists_give_what_a_fresh_search_gives():
             got = s.summarize_torch(torch.tensor(batch, requires_grad=True)).detach().numpy()
             want = s.summarize(batch)  # (float32)
             np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
-            np.testing.assert_array_equal(np.round(np.expm1(got[..., 0])), np.round(np.expm1(want[..., 0])))
+            if not smooth:
+                np.testing.assert_array_equal(np.round(np.expm1(got[..., 0])), np.round(np.expm1(want[..., 0])))
     lists = s.neighbour_lists
     assert lists.reuses >= 4 and lists.searches >= 3
 
@@ -205,3 +209,20 @@ def test_a_vertex_sample_keeps_the_pairs_among_its_vertices():
     spacing = np.linalg.norm(rest[faces[:, 0]] - rest[faces[:, 1]], axis=1).mean()
     assert gap.max() < 3 * spacing * np.sqrt(len(rest) / 200)
     assert np.array_equal(farthest_point_sample(rest, 10**6), np.arange(len(rest)))
+
+
+def test_the_smooth_form_is_continuous_where_a_pair_stops_being_close():
+    """Opening a fold past the radius: the plain summaries jump when the last pair leaves, the smooth ones reach their
+    no-pair values (0, 1, 1, clip) continuously; both forms agree with the numpy reference."""
+    rest, _, faces, partition = _bent_sheet(n=8, bend=3.0)
+    plain = ContactSummary(rest, faces, partition, 2, radius=0.3)
+    smooth = ContactSummary(rest, faces, partition, 2, radius=0.3, smooth=True)
+    bends = np.linspace(1.6, 3.0, 281)
+    meshes = np.stack([_bent_sheet(n=8, bend=b)[1] for b in bends])
+    for form in (plain, smooth):
+        t = form.summarize_torch(torch.tensor(meshes)).numpy()
+        np.testing.assert_allclose(t, form.summarize(meshes), rtol=1e-5, atol=1e-6)
+    jumps = {name: np.abs(np.diff(form.summarize(meshes), axis=0)).max() for name, form in
+             (("plain", plain), ("smooth", smooth))}
+    assert jumps["plain"] > 0.3 and jumps["smooth"] < 0.1
+    assert np.allclose(smooth.summarize(meshes[:1])[0], [0, 1, 1, 3.0], atol=1e-6)  # open: no close pair

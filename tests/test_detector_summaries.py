@@ -49,10 +49,11 @@ def _codes(n: int, seed: int = 0) -> torch.Tensor:
     return torch.cat([0.85 + 0.2 * torch.rand(n, 1, generator=g), 0.5 * torch.rand(n, 1, generator=g) - 0.25], 1)
 
 
-def _geometry(space, summaries: bool = True, summary_vertices: int | None = None):
+def _geometry(space, summaries: bool = True, summary_vertices: int | None = None, smooth: bool = False):
     meshes = space.decode(_codes(40).double()).numpy()
     return choose_geometry(space, meshes, None, radius=SETTINGS["radius"], min_hops=2, fold_ratio=0.5,
-                           per_part=4, summaries=summaries, summary_vertices=summary_vertices)
+                           per_part=4, summaries=summaries, summary_vertices=summary_vertices,
+                           summary_smooth=smooth)
 
 
 def test_summary_rows_follow_the_chosen_pairs_and_fill_two_slots_per_subdomain():
@@ -77,10 +78,12 @@ def test_summary_rows_follow_the_chosen_pairs_and_fill_two_slots_per_subdomain()
 
 
 @pytest.mark.parametrize("pool", ["linear", "deepsets"])
-def test_codes_path_equals_the_mesh_path_with_gradients(pool):
+@pytest.mark.parametrize("smooth", [False, True])
+def test_codes_path_equals_the_mesh_path_with_gradients(pool, smooth):
     torch.manual_seed(1)
     space = FoldSpace()
-    det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry(space), geometry_pool=pool).double()
+    det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry(space, smooth=smooth),
+                            geometry_pool=pool).double()
     on_codes = DetectorOnCodes(det, space)
     z = _codes(20, seed=2).double().requires_grad_(True)
     fast = on_codes(z).logit
@@ -100,7 +103,7 @@ def test_a_detector_with_summaries_saves_loads_and_runs_eagerly_in_the_fast_form
     det = CollisionDetector(2, 0, state_dim=6, hidden=8, geometry=_geometry(space, summary_vertices=90)).eval()
     save_detector(tmp_path / "d.pt", det, {"net": {"state_dim": 6, "hidden": 8}}, {"name": "active"}, 1.0)
     back, meta = load_detector(tmp_path / "d.pt")
-    assert meta["geometry"]["summaries"] == {"min_hops": 2, "fold_ratio": 0.5, "max_vertices": 90}
+    assert meta["geometry"]["summaries"] == {"min_hops": 2, "fold_ratio": 0.5, "max_vertices": 90, "smooth": False}
     assert np.array_equal(back.geometry.summary.sample, det.geometry.summary.sample)
     assert len(back.geometry.summary.sample) == 90
     z = _codes(30, seed=3)
@@ -116,10 +119,11 @@ def test_a_detector_with_summaries_saves_loads_and_runs_eagerly_in_the_fast_form
 def test_run_geometry_with_summaries_reloads_as_the_same_geometry(tmp_path):
     space = FoldSpace()
     z = _codes(40).numpy()
-    cfg = {**SETTINGS, "select_codes": 100, "summaries": True, "summary_vertices": 100}
+    cfg = {**SETTINGS, "select_codes": 100, "summaries": True, "summary_vertices": 100, "summary_form": "smooth"}
     geo = choose_run_geometry(space, z, np.zeros(len(z), bool), None, cfg, tmp_path / "geometry.npz")
     back = load_run_geometry(space, tmp_path / "geometry.npz")
     assert back.n_pairs == geo.n_pairs and back.summary is not None and back.summary.max_vertices == 100
+    assert back.summary.smooth and geo.summary.smooth
     v = space.decode(_codes(5, seed=4).double())
     torch.testing.assert_close(back.pair_features(v), geo.pair_features(v))
     plain = choose_run_geometry(space, z, np.zeros(len(z), bool), None, {**cfg, "summaries": False},

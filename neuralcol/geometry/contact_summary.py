@@ -191,7 +191,8 @@ def _normals_kernel(v, faces):  # pragma: no cover (compiled)
 
 
 @njit(cache=True)
-def _summarize_pairs(v, pr, rest, radius, fold_ratio, faces, partition, clip, vals, arg):  # pragma: no cover
+def _summarize_pairs(v, pr, rest, radius, fold_ratio, faces, partition, clip, smooth, vals,
+                     arg):  # pragma: no cover (compiled)
     """One mesh's summaries from pairs ``pr`` (P, 2) into ``vals`` (K, 4) and ``arg`` (K, 3, 2) (see
     :func:`_summaries_kernel`); the pairs are checked against the distance and fold rules first, so candidates
     found with a looser rule (a neighbour list with a skin) give the same result as the close pairs themselves."""
@@ -233,9 +234,15 @@ def _summarize_pairs(v, pr, rest, radius, fold_ratio, faces, partition, clip, va
         else:
             off, a, b = oj, j, i
         off = min(max(off / radius, -clip), clip)
+        w = 1.0
+        if smooth:  # the pair's weight falls to 0 where it stops being close: every summary continuous
+            w = 1.0 - max(dist, ratio / fold_ratio)
+            ratio = 1.0 - w * (1.0 - ratio)
+            dist = 1.0 - w * (1.0 - dist)
+            off = clip - w * (clip - off)
         for side in (i, j):
             k = partition[side]
-            vals[k, 0] += 1.0
+            vals[k, 0] += w
             if ratio < vals[k, 1]:
                 vals[k, 1] = ratio
                 arg[k, 0, 0] = i
@@ -268,7 +275,7 @@ def _sample_pairs(v, sample, rest_s, radius, fold_ratio, near_ptr, near_idx, sla
 
 @njit(cache=True)
 def _summaries_kernel(vs, sample, rest_s, radius, fold_ratio, near_ptr, near_idx, rest, faces, partition, n_parts,
-                      clip):  # pragma: no cover (compiled)
+                      clip, smooth):  # pragma: no cover (compiled)
     """The summaries of meshes (B, V, 3) in one pass over each mesh's close pairs (among the vertices ``sample``):
     values (B, K, 4) as :meth:`ContactSummary.summarize` gives them, and for the three minima the pair that attains
     each, (B, K, 3, 2) (-1 where a sub-domain has no close pair); for ``min_offset`` the pair is ordered (a, b)
@@ -277,20 +284,20 @@ def _summaries_kernel(vs, sample, rest_s, radius, fold_ratio, near_ptr, near_idx
     arg = np.empty((vs.shape[0], n_parts, 3, 2), np.int64)
     for m in range(vs.shape[0]):
         pr = _sample_pairs(vs[m], sample, rest_s, radius, fold_ratio, near_ptr, near_idx, 0.0)
-        _summarize_pairs(vs[m], pr, rest, radius, fold_ratio, faces, partition, clip, vals[m], arg[m])
+        _summarize_pairs(vs[m], pr, rest, radius, fold_ratio, faces, partition, clip, smooth, vals[m], arg[m])
     return vals, arg
 
 
 @njit(cache=True)
 def _summaries_of_candidates(vs, cand, cand_ptr, rest, radius, fold_ratio, faces, partition, n_parts,
-                             clip):  # pragma: no cover (compiled)
+                             clip, smooth):  # pragma: no cover (compiled)
     """:func:`_summaries_kernel` with each mesh's pairs taken from candidates, mesh m's ``cand[cand_ptr[m]:
     cand_ptr[m + 1]]`` (a superset of its close pairs)."""
     vals = np.empty((vs.shape[0], n_parts, 4))
     arg = np.empty((vs.shape[0], n_parts, 3, 2), np.int64)
     for m in range(vs.shape[0]):
         _summarize_pairs(vs[m], cand[cand_ptr[m]:cand_ptr[m + 1]], rest, radius, fold_ratio, faces, partition,
-                         clip, vals[m], arg[m])
+                         clip, smooth, vals[m], arg[m])
     return vals, arg
 
 
@@ -421,6 +428,67 @@ class NeighbourLists:
         return e
 
 
+@njit(cache=True)
+def _batch_pairs(vs, sample, rest_s, radius, fold_ratio, near_ptr, near_idx):  # pragma: no cover (compiled)
+    """Every mesh's close pairs, concatenated (Q, 2), and offsets (B + 1,): mesh m's are ``[ptr[m]:ptr[m + 1]]``."""
+    found = [_sample_pairs(vs[m], sample, rest_s, radius, fold_ratio, near_ptr, near_idx, 0.0)
+             for m in range(vs.shape[0])]
+    ptr = np.zeros(vs.shape[0] + 1, np.int64)
+    for m in range(vs.shape[0]):
+        ptr[m + 1] = ptr[m] + found[m].shape[0]
+    out = np.empty((ptr[-1], 2), np.int64)
+    for m in range(vs.shape[0]):
+        out[ptr[m]:ptr[m + 1]] = found[m]
+    return out, ptr
+
+
+@njit(cache=True)
+def _soft_count_grad(vs, cand, ptr, rest, radius, fold_ratio, partition, coef):  # pragma: no cover (compiled)
+    """The gradient (B, V, 3) of ``sum_{m,k} coef[m, k] * S[m, k]``, S the smooth form's weighted count of
+    sub-domain k of mesh m over its close pairs (among the candidates ``cand[ptr[m]:ptr[m + 1]]``): each pair's
+    weight ``1 - max(d / radius, d / (fold_ratio d_rest))`` falls with its distance d."""
+    grad = np.zeros_like(vs)
+    for m in range(vs.shape[0]):
+        v = vs[m]
+        for p in range(ptr[m], ptr[m + 1]):
+            i, j = cand[p, 0], cand[p, 1]
+            d2 = 0.0
+            q2 = 0.0
+            for e in range(3):
+                d2 += (v[j, e] - v[i, e]) ** 2
+                q2 += (rest[j, e] - rest[i, e]) ** 2
+            lim = fold_ratio * np.sqrt(q2)
+            if d2 >= radius * radius or d2 >= lim * lim:
+                continue
+            d = np.sqrt(d2)
+            slope = 1.0 / radius if d / radius >= d / lim else 1.0 / lim  # d(1 - weight) / dd
+            g = (coef[m, partition[i]] + coef[m, partition[j]]) * slope / d
+            for e in range(3):
+                t = g * (v[j, e] - v[i, e])
+                grad[m, j, e] -= t
+                grad[m, i, e] += t
+    return grad
+
+
+class _SmoothCount(torch.autograd.Function):
+    """The smooth form's ``log(1 + weighted count)`` (B, K), its gradient from :func:`_soft_count_grad`."""
+
+    @staticmethod
+    def forward(ctx, vertices, log_count, summary, cand, ptr):
+        ctx.save_for_backward(log_count)
+        ctx.summary, ctx.cand, ctx.ptr = summary, cand, ptr
+        ctx.v = vertices.detach().cpu().numpy().astype(np.float64)
+        return log_count.clone()
+
+    @staticmethod
+    def backward(ctx, grad):
+        (log_count,) = ctx.saved_tensors
+        s = ctx.summary
+        coef = (grad / torch.exp(log_count)).detach().cpu().numpy().astype(np.float64)  # d log(1 + S) / dS
+        g = _soft_count_grad(ctx.v, ctx.cand, ctx.ptr, s.rest, s.radius, s.fold_ratio, s.partition, coef)
+        return torch.as_tensor(g, dtype=grad.dtype, device=grad.device), None, None, None, None
+
+
 def farthest_point_sample(points: np.ndarray, n: int) -> np.ndarray:
     """(n,) ascending indices of ``n`` of ``points`` (P, 3) spread evenly: greedy farthest-point sampling from the
     point nearest the centroid (deterministic)."""
@@ -459,10 +527,17 @@ class ContactSummary:
             the rest mesh (:func:`farthest_point_sample`): a fixed-radius search costs about V times the vertices
             within a radius, which grows with V on a finer mesh (13 348 vertices: ~17 ms a mesh, 4 096: ~2 ms).
             None: every vertex.
+        smooth: each close pair counts with the weight ``w = 1 - max(d / radius, d / (fold_ratio d_rest))`` (1 for
+            touching surfaces, 0 where the pair stops being close) and pulls each minimum toward its value by w:
+            ``log(1 + sum w)``, ``min 1 - w (1 - ratio)``, ``min 1 - w (1 - d / radius)``, ``min clip - w (clip -
+            offset)``; every summary is then continuous in the vertices (the plain form jumps when a pair enters or
+            leaves), which an optimiser through the detector (the handler, the projector) prefers.
     """
 
     def __init__(self, rest: np.ndarray, faces: np.ndarray, partition: np.ndarray, n_parts: int, radius: float,
-                 min_hops: int = 2, fold_ratio: float = 0.5, clip: float = 3.0, max_vertices: int | None = None):
+                 min_hops: int = 2, fold_ratio: float = 0.5, clip: float = 3.0, max_vertices: int | None = None,
+                 smooth: bool = False):
+        self.smooth = bool(smooth)
         self.rest = np.asarray(rest, np.float64)
         self.faces = np.asarray(faces, np.int64)
         self.partition = np.asarray(partition, np.int64)
@@ -527,11 +602,16 @@ class ContactSummary:
             normals = vertex_normals_np(v, self.faces)
             off = np.minimum(np.einsum("pc,pc->p", delta, normals[i]), np.einsum("pc,pc->p", -delta, normals[j]))
             off = np.clip(off / self.radius, -self.clip, self.clip)
+            r, t = d / d_rest, d / self.radius
+            w = np.ones_like(d)
+            if self.smooth:
+                w = 1.0 - np.maximum(t, r / self.fold_ratio)
+                r, t, off = 1.0 - w * (1.0 - r), 1.0 - w * (1.0 - t), self.clip - w * (self.clip - off)
             for side in (i, j):
                 part = self.partition[side]
-                np.add.at(count, part, 1.0)
-                np.minimum.at(ratio, part, d / d_rest)
-                np.minimum.at(dist, part, d / self.radius)
+                np.add.at(count, part, w)
+                np.minimum.at(ratio, part, r)
+                np.minimum.at(dist, part, t)
                 np.minimum.at(offset, part, off)
         return np.stack([np.log1p(count), ratio, dist, offset], axis=1)
 
@@ -546,25 +626,35 @@ class ContactSummary:
         v = np.ascontiguousarray(vertices.detach().cpu().numpy(), dtype=np.float64)
         if not np.isfinite(v).all():
             raise ValueError("vertices hold NaN or infinite values")
+        cand = offsets = None
         if _REUSING[0]:  # an optimiser's call: the same meshes come back, moved a little
             cand, offsets = self.neighbour_lists.candidates(v)
+        elif self.smooth and vertices.requires_grad:  # the count's gradient reads every close pair
+            cand, offsets = _batch_pairs(v, self.sample, self._rest_sample, self.radius, self.fold_ratio,
+                                         self._near_ptr, self._near_idx)
+        if cand is not None:
             vals, arg = _summaries_of_candidates(v, cand, offsets, self.rest, self.radius, self.fold_ratio,
-                                                 self.faces, self.partition, self.n_parts, self.clip)
+                                                 self.faces, self.partition, self.n_parts, self.clip, self.smooth)
         else:
             vals, arg = _summaries_kernel(v, self.sample, self._rest_sample, self.radius, self.fold_ratio,
                                           self._near_ptr, self._near_idx, self.rest, self.faces, self.partition,
-                                          self.n_parts, self.clip)
+                                          self.n_parts, self.clip, self.smooth)
         out = torch.as_tensor(vals, dtype=vertices.dtype, device=vertices.device)
         if not vertices.requires_grad:
             return out
-        return self._attach_gradients(vertices, out, arg)
+        return self._attach_gradients(vertices, out, arg, cand, offsets)
 
-    def _attach_gradients(self, vertices: torch.Tensor, out: torch.Tensor, arg: np.ndarray) -> torch.Tensor:
+    def _attach_gradients(self, vertices: torch.Tensor, out: torch.Tensor, arg: np.ndarray, cand, offsets
+                          ) -> torch.Tensor:
         """``out`` (B, K, 4) with its three minima measured again, differentiably, at the pairs ``arg``
-        (B, K, 3, 2) that attain them."""
+        (B, K, 3, 2) that attain them (and, in the smooth form, the count given its gradient over the pairs among
+        the candidates ``cand``)."""
         b, k, n_sum = out.shape
         device, flat = vertices.device, out.reshape(b * k, n_sum)
-        columns = [flat[:, 0]]
+        if self.smooth:
+            columns = [_SmoothCount.apply(vertices, out[..., 0], self, cand, offsets).reshape(b * k)]
+        else:
+            columns = [flat[:, 0]]
         for s, col in enumerate((1, 2, 3)):
             pairs = arg[:, :, s].reshape(b * k, 2)
             slot = np.flatnonzero(pairs[:, 0] >= 0)
@@ -576,14 +666,18 @@ class ContactSummary:
             mesh_t = torch.as_tensor(mesh, device=device)
             i, j = (torch.as_tensor(pr[:, q], device=device) for q in range(2))
             delta = vertices[mesh_t, j] - vertices[mesh_t, i]
+            rest = torch.as_tensor(self.rest, dtype=vertices.dtype, device=device)
+            d = delta.norm(dim=1)
+            ratio, dist = d / (rest[j] - rest[i]).norm(dim=1), d / self.radius
             if col == 3:  # (x_b - x_a) . n_a over radius, clipped
                 normal = self._pair_normals(vertices, mesh, pr)[0]
                 value = ((delta * normal).sum(1) / self.radius).clamp(-self.clip, self.clip)
-            elif col == 2:
-                value = delta.norm(dim=1) / self.radius
             else:
-                rest = torch.as_tensor(self.rest, dtype=vertices.dtype, device=device)
-                value = delta.norm(dim=1) / (rest[j] - rest[i]).norm(dim=1)
+                value = dist if col == 2 else ratio
+            if self.smooth:  # pulled toward its value by the pair's weight
+                w = 1.0 - torch.maximum(dist, ratio / self.fold_ratio)
+                top = self.clip if col == 3 else 1.0
+                value = top - w * (top - value)
             columns.append(flat[:, col].index_put((torch.as_tensor(slot, device=device),), value))
         return torch.stack(columns, dim=1).view(b, k, n_sum)
 

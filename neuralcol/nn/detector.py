@@ -419,7 +419,7 @@ def save_detector(path: Path, net: CollisionDetector, det: dict, method: dict, p
               "clip": net.geometry.contact.clip, "fixed_slots": int(net.geometry.n_fixed_slots),
               "summaries": None if net.geometry.summary is None else
               {"min_hops": net.geometry.summary.min_hops, "fold_ratio": net.geometry.summary.fold_ratio,
-               "max_vertices": net.geometry.summary.max_vertices}}}
+               "max_vertices": net.geometry.summary.max_vertices, "smooth": net.geometry.summary.smooth}}}
     blob = {"state": net.state_dict(), **plain_values(facts, Path(path).name)}
     with atomic_path(path) as tmp:
         torch.save(blob, tmp)

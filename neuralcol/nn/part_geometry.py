@@ -118,7 +118,8 @@ def choose_part_pairs(pairs: np.ndarray, scores: np.ndarray, partition: np.ndarr
 
 def choose_geometry(space, meshes: np.ndarray, collides: np.ndarray | None = None, radius: float = 0.02,
                     min_hops: int = 2, fold_ratio: float = 0.5, colliding_weight: float = 3.0, per_part: int = 32,
-                    clip: float = 3.0, summaries: bool = False, summary_vertices: int | None = None) -> PartGeometry:
+                    clip: float = 3.0, summaries: bool = False, summary_vertices: int | None = None,
+                    summary_smooth: bool = False) -> PartGeometry:
     """The :class:`PartGeometry` of a latent space, its pairs chosen on example meshes.
 
     Args:
@@ -130,7 +131,8 @@ def choose_geometry(space, meshes: np.ndarray, collides: np.ndarray | None = Non
         clip: features clipped to ``[-clip, clip]`` radii.
         summaries: also read the summaries of every close pair per sub-domain (:class:`PartGeometry`), with the
             same radius, min_hops and fold_ratio. summary_vertices: their pairs among at most this many vertices
-            (``ContactSummary``'s ``max_vertices``; None: all).
+            (``ContactSummary``'s ``max_vertices``; None: all). summary_smooth: their continuous form
+            (``ContactSummary``'s ``smooth``).
 
     Raises:
         ValueError: no pair comes close in the examples (the message says what to raise).
@@ -148,15 +150,17 @@ def choose_geometry(space, meshes: np.ndarray, collides: np.ndarray | None = Non
     partition = space.partition.detach().cpu().numpy()
     chosen, slots, mask = choose_part_pairs(pairs, scores, partition, int(partition.max()) + 1, per_part)
     return PartGeometry(chosen, slots, mask, faces, radius * diag, clip,
-                        space_summaries(space, min_hops, fold_ratio, summary_vertices) if summaries else None)
+                        space_summaries(space, min_hops, fold_ratio, summary_vertices, summary_smooth) if summaries
+                        else None)
 
 
-def space_summaries(space, min_hops: int, fold_ratio: float, max_vertices: int | None = None) -> dict:
+def space_summaries(space, min_hops: int, fold_ratio: float, max_vertices: int | None = None,
+                    smooth: bool = False) -> dict:
     """:class:`PartGeometry`'s ``summaries`` argument for a latent space's topology."""
     return {"rest": space.rest_vertices.detach().cpu().numpy().astype(np.float64),
             "faces": space.faces.detach().cpu().numpy(), "partition": space.partition.detach().cpu().numpy(),
             "min_hops": int(min_hops), "fold_ratio": float(fold_ratio),
-            "max_vertices": None if max_vertices is None else int(max_vertices)}
+            "max_vertices": None if max_vertices is None else int(max_vertices), "smooth": bool(smooth)}
 
 
 class PartGeometry(nn.Module):
@@ -173,8 +177,8 @@ class PartGeometry(nn.Module):
         pairs: (P, 2) chosen pairs. slots, mask: (K, M) (:func:`choose_part_pairs`).
         faces: (F, 3) triangles. radius: the feature unit. clip: features clipped to ``[-clip, clip]``.
         summaries: None, or ``{"rest": (V, 3), "faces": (F, 3) every triangle, "partition": (V,), "min_hops",
-            "fold_ratio", "max_vertices" (optional, None: all)}`` (the closeness rule of the summaries, radius and
-            clip as the pairs').
+            "fold_ratio", "max_vertices" (optional, None: all), "smooth" (optional, False)}`` (the closeness rule of
+            the summaries, radius and clip as the pairs').
     """
 
     def __init__(self, pairs: np.ndarray, slots: np.ndarray, mask: np.ndarray, faces: np.ndarray, radius: float,
@@ -191,7 +195,7 @@ class PartGeometry(nn.Module):
             partition = np.asarray(summaries["partition"], np.int64)
             self.summary = ContactSummary(rest, all_faces, partition, k, float(self.contact.radius),
                                           int(summaries["min_hops"]), float(summaries["fold_ratio"]), float(clip),
-                                          summaries.get("max_vertices"))
+                                          summaries.get("max_vertices"), bool(summaries.get("smooth", False)))
             self.register_buffer("summary_rest", torch.as_tensor(rest))
             self.register_buffer("summary_faces", torch.as_tensor(all_faces))
             self.register_buffer("summary_partition", torch.as_tensor(partition))
@@ -228,7 +232,8 @@ class PartGeometry(nn.Module):
             return None
         return {"rest": self.summary_rest.cpu().numpy(), "faces": self.summary_faces.cpu().numpy(),
                 "partition": self.summary_partition.cpu().numpy(), "min_hops": self.summary.min_hops,
-                "fold_ratio": self.summary.fold_ratio, "max_vertices": self.summary.max_vertices}
+                "fold_ratio": self.summary.fold_ratio, "max_vertices": self.summary.max_vertices,
+                "smooth": self.summary.smooth}
 
     def _summary_rows(self, vertices: torch.Tensor) -> torch.Tensor:
         """Whole meshes (B, V, 3) -> their summaries as feature rows (B, 2 K, 3) (see the class doc)."""
@@ -412,7 +417,8 @@ def choose_run_geometry(space, z: np.ndarray, collides: np.ndarray, real, cfg: d
                           fold_ratio=float(cfg["fold_ratio"]), colliding_weight=float(cfg["colliding_weight"]),
                           per_part=int(cfg["per_part"]), clip=float(cfg["clip"]),
                           summaries=bool(cfg.get("summaries", False)),
-                          summary_vertices=cfg.get("summary_vertices"))
+                          summary_vertices=cfg.get("summary_vertices"),
+                          summary_smooth=str(cfg.get("summary_form", "plain")) == "smooth")
     slots, mask = geo.fixed_slots
     with atomic_path(Path(path)) as tmp:
         with open(tmp, "wb") as f:
@@ -421,7 +427,8 @@ def choose_run_geometry(space, z: np.ndarray, collides: np.ndarray, real, cfg: d
                      n_examples=np.int64(len(v)), summaries=np.bool_(geo.summary is not None),
                      min_hops=np.int64(cfg["min_hops"]), fold_ratio=np.float64(cfg["fold_ratio"]),
                      summary_vertices=np.int64(-1 if geo.summary is None or geo.summary.max_vertices is None
-                                               else geo.summary.max_vertices))
+                                               else geo.summary.max_vertices),
+                     summary_smooth=np.bool_(geo.summary is not None and geo.summary.smooth))
     return geo
 
 
@@ -432,7 +439,9 @@ def load_run_geometry(space, path: str | Path) -> PartGeometry:
         summaries = None
         if "summaries" in f.files and bool(f["summaries"]):
             most = int(f["summary_vertices"]) if "summary_vertices" in f.files else -1  # older files: all
-            summaries = space_summaries(space, int(f["min_hops"]), float(f["fold_ratio"]), most if most > 0 else None)
+            smooth = bool(f["summary_smooth"]) if "summary_smooth" in f.files else False
+            summaries = space_summaries(space, int(f["min_hops"]), float(f["fold_ratio"]), most if most > 0 else None,
+                                        smooth)
         return PartGeometry(f["pairs"], f["slots"], f["mask"], space.faces.detach().cpu().numpy(),
                             float(f["radius"]), float(f["clip"]), summaries)
 

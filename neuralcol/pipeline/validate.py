@@ -71,6 +71,8 @@ def config_problems(cfg: DictConfig) -> list[str]:
         need("detector.geometry.pool", lambda v: v in ("linear", "deepsets"), "use linear or deepsets")
         if _get(cfg, "detector.geometry.summaries") is not None:
             need("detector.geometry.summaries", lambda v: isinstance(v, bool), "use true or false")
+        if _get(cfg, "detector.geometry.summary_form") is not None:
+            need("detector.geometry.summary_form", lambda v: v in ("plain", "smooth"), "use plain or smooth")
         if _get(cfg, "detector.geometry.summary_vertices") is not None:
             need("detector.geometry.summary_vertices", lambda v: is_int(v) and v >= 2,
                  "must be an integer >= 2, or null for every vertex")

@@ -11,3 +11,7 @@ VARIANTS[summaries]="detector.geometry.summaries=true"
 # summaries_rows4: both
 VARIANTS[summaries_rows4]="detector.geometry.summaries=true ${VARIANTS[rows4]}"
 BODY_VARIANTS[summaries_rows4]="detector.geometry.summaries=true ${BODY_VARIANTS[rows4]}"
+# summaries_smooth_rows4: summaries_rows4 with the continuous form of the summaries (each close pair weighted by how
+# close it is; registered after the seed-0 screening of the four above, for the handler's descent)
+VARIANTS[summaries_smooth_rows4]="${VARIANTS[summaries_rows4]} detector.geometry.summary_form=smooth"
+BODY_VARIANTS[summaries_smooth_rows4]="${BODY_VARIANTS[summaries_rows4]} detector.geometry.summary_form=smooth"
