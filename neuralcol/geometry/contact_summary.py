@@ -18,6 +18,10 @@ fixed pairs). Each close pair counts in the sub-domains of both its vertices. Pe
   over ``radius`` and clipped to ``[-clip, clip]`` (``clip`` when none): negative once a vertex has passed behind
   the other surface, which tells a penetration from a touch.
 
+These jump when a pair enters or leaves the close set. The smooth form (``smooth=True``) weights each pair by how close
+it is, ``w = 1 - max(d / radius, d / (fold_ratio d_rest))``, and pulls each minimum toward its value by w (see
+:class:`ContactSummary`): every summary is then continuous in the vertices.
+
 Cost. One compiled pass per mesh finds the close pairs (a hashed uniform grid: memory O(V) however far the vertices
 spread), measures them and keeps, for each minimum, the pair behind it; with gradients only those pairs (at most 3 K a
 mesh, of the thousands a deep collision has) are measured again in torch. An optimiser that asks about the same meshes
