@@ -39,7 +39,7 @@ from contextlib import contextmanager
 
 import numpy as np
 import torch
-from numba import njit
+from numba import njit, prange
 
 from neuralcol.geometry.contact_pairs import hop_neighbourhood
 
@@ -277,7 +277,7 @@ def _sample_pairs(v, sample, rest_s, radius, fold_ratio, near_ptr, near_idx, sla
     return pr
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _summaries_kernel(vs, sample, rest_s, radius, fold_ratio, near_ptr, near_idx, rest, faces, partition, n_parts,
                       clip, smooth):  # pragma: no cover (compiled)
     """The summaries of meshes (B, V, 3) in one pass over each mesh's close pairs (among the vertices ``sample``):
@@ -286,20 +286,20 @@ def _summaries_kernel(vs, sample, rest_s, radius, fold_ratio, near_ptr, near_idx
     with the offset ``(x_b - x_a) . n_a``, the normal read at a."""
     vals = np.empty((vs.shape[0], n_parts, 4))
     arg = np.empty((vs.shape[0], n_parts, 3, 2), np.int64)
-    for m in range(vs.shape[0]):
+    for m in prange(vs.shape[0]):  # the meshes on every core (each its own: the same numbers on any count)
         pr = _sample_pairs(vs[m], sample, rest_s, radius, fold_ratio, near_ptr, near_idx, 0.0)
         _summarize_pairs(vs[m], pr, rest, radius, fold_ratio, faces, partition, clip, smooth, vals[m], arg[m])
     return vals, arg
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _summaries_of_candidates(vs, cand, cand_ptr, rest, radius, fold_ratio, faces, partition, n_parts,
                              clip, smooth):  # pragma: no cover (compiled)
     """:func:`_summaries_kernel` with each mesh's pairs taken from candidates, mesh m's ``cand[cand_ptr[m]:
     cand_ptr[m + 1]]`` (a superset of its close pairs)."""
     vals = np.empty((vs.shape[0], n_parts, 4))
     arg = np.empty((vs.shape[0], n_parts, 3, 2), np.int64)
-    for m in range(vs.shape[0]):
+    for m in prange(vs.shape[0]):
         _summarize_pairs(vs[m], cand[cand_ptr[m]:cand_ptr[m + 1]], rest, radius, fold_ratio, faces, partition,
                          clip, smooth, vals[m], arg[m])
     return vals, arg
