@@ -226,3 +226,18 @@ def test_the_smooth_form_is_continuous_where_a_pair_stops_being_close():
              (("plain", plain), ("smooth", smooth))}
     assert jumps["plain"] > 0.3 and jumps["smooth"] < 0.1
     assert np.allclose(smooth.summarize(meshes[:1])[0], [0, 1, 1, 3.0], atol=1e-6)  # open: no close pair
+
+
+def test_the_parallel_kernels_leave_torch_on_its_pinned_thread_count():
+    """numba's OpenMP layer sets the process's thread count; torch's (pinned for repeatable numbers) comes back."""
+    rest, x, faces, partition = _bent_sheet(bend=3.0)
+    s = ContactSummary(rest, faces, partition, 2, radius=0.3)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        s.summarize_torch(torch.tensor(np.stack([x, rest])))
+        with reusing_neighbours():
+            s.summarize_torch(torch.tensor(np.stack([x, rest]), requires_grad=True))
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)

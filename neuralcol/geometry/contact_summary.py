@@ -344,6 +344,18 @@ def _match_kernel(vs, meshes, sigs, sig_idx, n_stored, guess, half2):  # pragma:
     return pick
 
 
+def _on_every_core(kernel, *args):
+    """Run a numba kernel whose meshes run in parallel, then give torch back its intra-op thread count: numba's
+    OpenMP layer sets the process's OpenMP thread count, which torch reads as its own, and a run pins torch's count
+    for numbers that repeat on every machine (:mod:`neuralcol.utils.threads`)."""
+    threads = torch.get_num_threads()
+    try:
+        return kernel(*args)
+    finally:
+        if torch.get_num_threads() != threads:
+            torch.set_num_threads(threads)
+
+
 class NeighbourLists:
     """Candidate pairs kept for meshes that come back barely moved: a neighbour list with a skin (a Verlet list).
 
@@ -637,12 +649,13 @@ class ContactSummary:
             cand, offsets = _batch_pairs(v, self.sample, self._rest_sample, self.radius, self.fold_ratio,
                                          self._near_ptr, self._near_idx)
         if cand is not None:
-            vals, arg = _summaries_of_candidates(v, cand, offsets, self.rest, self.radius, self.fold_ratio,
-                                                 self.faces, self.partition, self.n_parts, self.clip, self.smooth)
+            vals, arg = _on_every_core(_summaries_of_candidates, v, cand, offsets, self.rest, self.radius,
+                                       self.fold_ratio, self.faces, self.partition, self.n_parts, self.clip,
+                                       self.smooth)
         else:
-            vals, arg = _summaries_kernel(v, self.sample, self._rest_sample, self.radius, self.fold_ratio,
-                                          self._near_ptr, self._near_idx, self.rest, self.faces, self.partition,
-                                          self.n_parts, self.clip, self.smooth)
+            vals, arg = _on_every_core(_summaries_kernel, v, self.sample, self._rest_sample, self.radius,
+                                       self.fold_ratio, self._near_ptr, self._near_idx, self.rest, self.faces,
+                                       self.partition, self.n_parts, self.clip, self.smooth)
         out = torch.as_tensor(vals, dtype=vertices.dtype, device=vertices.device)
         if not vertices.requires_grad:
             return out
