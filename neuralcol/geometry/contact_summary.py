@@ -138,7 +138,7 @@ class NeighbourLists:
                 self.reuses += 1
                 continue
             cand = sample_pairs(vs[m], s.sample, s._rest_sample, s.radius + self.skin, s.fold_ratio, s._near_ptr,
-                                 s._near_idx, self.skin)
+                                s._near_idx, self.skin)
             found.append(cand)
             pick[m] = self._store(vs[m], cand)
             self.searches += 1
@@ -275,7 +275,7 @@ class ContactSummary:
         if not np.isfinite(v).all():
             raise ValueError("vertices hold NaN or infinite values")
         return sample_pairs(v, self.sample, self._rest_sample, self.radius, self.fold_ratio, self._near_ptr,
-                             self._near_idx, 0.0)
+                            self._near_idx, 0.0)
 
     def summarize(self, meshes: np.ndarray) -> np.ndarray:
         """(N, K, S) float32 summaries of meshes (N, V, 3) (numpy, no gradients)."""
@@ -328,7 +328,7 @@ class ContactSummary:
             cand, offsets = self.neighbour_lists.candidates(v)
         elif self.smooth and vertices.requires_grad:  # the count's gradient reads every close pair
             cand, offsets = batch_pairs(v, self.sample, self._rest_sample, self.radius, self.fold_ratio,
-                                         self._near_ptr, self._near_idx)
+                                        self._near_ptr, self._near_idx)
         if cand is not None:
             vals, arg = _on_every_core(summaries_of_candidates, v, cand, offsets, self.rest, self.radius,
                                        self.fold_ratio, self.faces, self.partition, self.n_parts, self.clip,

@@ -147,7 +147,7 @@ def normals_kernel(v, faces):  # pragma: no cover (compiled)
 
 @njit(cache=True)
 def summarize_pairs(v, pr, rest, radius, fold_ratio, faces, partition, clip, smooth, vals,
-                     arg):  # pragma: no cover (compiled)
+                    arg):  # pragma: no cover (compiled)
     """One mesh's summaries from pairs ``pr`` (P, 2) into ``vals`` (K, 4) and ``arg`` (K, 3, 2) (see
     :func:`summaries_kernel`); the pairs are checked against the distance and fold rules first, so candidates
     found with a looser rule (a neighbour list with a skin) give the same result as the close pairs themselves."""
@@ -230,11 +230,11 @@ def sample_pairs(v, sample, rest_s, radius, fold_ratio, near_ptr, near_idx, slac
 
 @njit(cache=True, parallel=True)
 def summaries_kernel(vs, sample, rest_s, radius, fold_ratio, near_ptr, near_idx, rest, faces, partition, n_parts,
-                      clip, smooth):  # pragma: no cover (compiled)
+                     clip, smooth):  # pragma: no cover (compiled)
     """The summaries of meshes (B, V, 3) in one pass over each mesh's close pairs (among the vertices ``sample``):
-    values (B, K, 4) as :meth:`ContactSummary.summarize` gives them, and for the three minima the pair that attains
-    each, (B, K, 3, 2) (-1 where a sub-domain has no close pair); for ``min_offset`` the pair is ordered (a, b)
-    with the offset ``(x_b - x_a) . n_a``, the normal read at a."""
+    values (B, K, 4) as :meth:`~neuralcol.geometry.contact_summary.ContactSummary.summarize` gives them, and for
+    the three minima the pair that attains each, (B, K, 3, 2) (-1 where a sub-domain has no close pair); for
+    ``min_offset`` the pair is ordered (a, b) with the offset ``(x_b - x_a) . n_a``, the normal read at a."""
     vals = np.empty((vs.shape[0], n_parts, 4))
     arg = np.empty((vs.shape[0], n_parts, 3, 2), np.int64)
     for m in prange(vs.shape[0]):  # the meshes on every core (each its own: the same numbers on any count)
@@ -245,7 +245,7 @@ def summaries_kernel(vs, sample, rest_s, radius, fold_ratio, near_ptr, near_idx,
 
 @njit(cache=True, parallel=True)
 def summaries_of_candidates(vs, cand, cand_ptr, rest, radius, fold_ratio, faces, partition, n_parts,
-                             clip, smooth):  # pragma: no cover (compiled)
+                            clip, smooth):  # pragma: no cover (compiled)
     """:func:`summaries_kernel` with each mesh's pairs taken from candidates, mesh m's ``cand[cand_ptr[m]:
     cand_ptr[m + 1]]`` (a superset of its close pairs)."""
     vals = np.empty((vs.shape[0], n_parts, 4))
