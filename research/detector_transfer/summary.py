@@ -62,6 +62,14 @@ def _ms(values: list[float], digits: int = 3) -> str:
     return f"{v.mean():.{digits}f}" if len(v) == 1 else f"{v.mean():.{digits}f} ± {v.std(ddof=1):.{digits}f}"
 
 
+def groups(runs: dict):
+    """``(variant, data set, "0,1,2", rows)`` of every variant and data set, the study's sets first."""
+    for variant, sets in runs.items():
+        for name in [s for s in SETS if s in sets] + [s for s in sets if s not in SETS]:
+            seeds = sorted(sets[name])
+            yield variant, name, ",".join(map(str, seeds)), [sets[name][k] for k in seeds]
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dir", default="outputs/detector_transfer")
@@ -71,27 +79,23 @@ def main(argv: list[str] | None = None) -> None:
     print("| variant | data set | seeds | realistic acc | realistic FNR | skill (majority) | U(Z) acc at 0 | "
           "U(Z) FNR at 0 | threshold | realistic rows | minutes |")
     print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for variant, sets in runs.items():
-        for name in [s for s in SETS if s in sets] + [s for s in sets if s not in SETS]:
-            rows = [sets[name][k] for k in sorted(sets[name])]
-            def col(key, rows=rows):
-                return [r[key] for r in rows]
+    for variant, name, seeds, rows in groups(runs):
+        def col(key, rows=rows):
+            return [r.get(key) for r in rows]
 
-            print(f"| {variant} | {name} | {','.join(map(str, sorted(sets[name])))} | {_ms(col('real_acc'))} | "
-                  f"{_ms(col('real_fnr'))} | {_ms(col('real_skill'))} ({_ms(col('real_majority'))}) | "
-                  f"{_ms(col('uz_acc'))} | {_ms(col('uz_fnr'))} | {_ms(col('threshold'))} | "
-                  f"{_ms(col('n_realistic_rows'), 0)} | {_ms(col('minutes'), 1)} |")
+        print(f"| {variant} | {name} | {seeds} | {_ms(col('real_acc'))} | "
+              f"{_ms(col('real_fnr'))} | {_ms(col('real_skill'))} ({_ms(col('real_majority'))}) | "
+              f"{_ms(col('uz_acc'))} | {_ms(col('uz_fnr'))} | {_ms(col('threshold'))} | "
+              f"{_ms(col('n_realistic_rows'), 0)} | {_ms(col('minutes'), 1)} |")
     print()
     print("| variant | data set | seeds | handler success on U(Z): detector only | verified | realistic resolve frees: "
           "detector only | verified | handler stage s |")
     print("|---|---|---|---:|---:|---:|---:|---:|")
-    for variant, sets in runs.items():
-        for name in [s for s in SETS if s in sets] + [s for s in sets if s not in SETS]:
-            rows = [sets[name][k] for k in sorted(sets[name])]
-            print(f"| {variant} | {name} | {','.join(map(str, sorted(sets[name])))} | "
-                  + " | ".join(_ms([r.get(key) for r in rows]) for key in
-                               ("handler_success", "handler_verified", "resolve_freed", "resolve_freed_verified"))
-                  + f" | {_ms([r.get('handler_seconds') for r in rows], 0)} |")
+    for variant, name, seeds, rows in groups(runs):
+        print(f"| {variant} | {name} | {seeds} | "
+              + " | ".join(_ms([r.get(key) for r in rows]) for key in
+                           ("handler_success", "handler_verified", "resolve_freed", "resolve_freed_verified"))
+              + f" | {_ms([r.get('handler_seconds') for r in rows], 0)} |")
     if a.json:
         Path(a.json).write_text(json.dumps(runs, indent=1))
 
