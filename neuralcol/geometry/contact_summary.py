@@ -104,21 +104,18 @@ class NeighbourLists:
         self.clear()
 
     def clear(self) -> None:
+        """Forget every stored mesh."""
+        self.__dict__.update(self._empty())
+
+    def _empty(self) -> dict:
         n = len(self.summary.rest)
-        self._meshes = np.empty((0, n, 3))  # grown by doubling up to the capacity
-        self._sigs = np.empty((0, len(self._sig) * 3))
-        self._cands: list[np.ndarray] = []
-        self._used = np.empty(0, np.int64)
-        self._last = np.empty(0, np.int64)  # the stored mesh each row of the last call used
-        self._clock = 0
-        self.searches = self.reuses = 0
+        return {"_meshes": np.empty((0, n, 3)),  # grown by doubling up to the capacity
+                "_sigs": np.empty((0, len(self._sig) * 3)), "_cands": [], "_used": np.empty(0, np.int64),
+                "_last": np.empty(0, np.int64),  # the stored mesh each row of the last call used
+                "_clock": 0, "searches": 0, "reuses": 0}
 
     def __getstate__(self):  # copies and pickles start empty (the stored meshes are a cache)
-        state = self.__dict__.copy()
-        n = len(self.summary.rest)
-        state.update(_meshes=np.empty((0, n, 3)), _sigs=np.empty((0, len(self._sig) * 3)), _cands=[],
-                     _used=np.empty(0, np.int64), _last=np.empty(0, np.int64), _clock=0, searches=0, reuses=0)
-        return state
+        return {**self.__dict__, **self._empty()}
 
     def candidates(self, vs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Meshes (B, V, 3) -> (candidates (Q, 2), offsets (B + 1,)): mesh m's candidates are
