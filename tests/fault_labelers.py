@@ -87,12 +87,15 @@ def two_spheres(offset: float, subdivisions: int = 1) -> tuple[np.ndarray, np.nd
 
 class SphereDecoder:
     """A stand-in decoder for ``LabelPool.label_codes_report``: code (offset, m) -> two spheres ``offset`` apart,
-    NaN vertices when m > 2.4, the RAISE sentinel when m > 2.7; it records the pid of the process that decoded."""
+    NaN vertices when m > 2.4, the RAISE sentinel when m > 2.7; ``shift`` is added to every offset."""
+
+    def __init__(self, shift: float = 0.0):
+        self.shift = float(shift)
 
     def __call__(self, codes: np.ndarray) -> np.ndarray:
         out = []
         for offset, m in np.asarray(codes, np.float64):
-            v = two_spheres(offset)[0]
+            v = two_spheres(offset + self.shift)[0]
             if m > 2.7:
                 v = mark(v, RAISE)
             elif m > 2.4:

@@ -303,8 +303,9 @@ def test_training_oracle_gives_the_full_labels_clipped_targets_and_its_own_pool(
 
 @pytest.mark.parametrize("workers", [0, 2])
 def test_codes_decoded_where_they_are_labeled_get_the_labels_of_their_meshes(setup, workers):
-    """label_codes_report(codes, decoder): the decoder runs in the workers (sent once; a new decoder restarts them);
-    the labels equal label_report on the decoded meshes, non-finite meshes and raising ones are reported."""
+    """label_codes_report(codes, decoder): the decoder runs in the workers (pickled once; a new decoder reaches the
+    running workers, and its labels are its own); the labels equal label_report on the decoded meshes, non-finite
+    meshes and raising ones are reported; close() removes the pool's scratch folder."""
     from fault_labelers import SphereDecoder
 
     _, faulty, _ = setup
@@ -323,5 +324,18 @@ def test_codes_decoded_where_they_are_labeled_get_the_labels_of_their_meshes(set
             pool.label_codes_report(codes[:2], dec)
             assert pool._pids == pids, "the same decoder keeps the workers"
             again = pool.label_codes_report(codes, SphereDecoder(), clearance_limit=0.05)
-            assert pool._pids and pool._pids != pids, "a new decoder restarts them"
             np.testing.assert_array_equal(again.labels.pd, got.labels.pd)
+            shifted = SphereDecoder(shift=1.0)  # the spheres 1 apart further: fewer collide
+            moved = pool.label_codes_report(codes, shifted, clearance_limit=0.05)
+            assert pool._pids == pids, "a new decoder keeps the workers"
+            ref = pool.label_report(shifted(codes), clearance_limit=0.05)
+            assert (moved.labels.collides != got.labels.collides).any(), "the second decoder labels other meshes"
+            for name in Labels._fields:
+                np.testing.assert_array_equal(getattr(moved.labels, name), getattr(ref.labels, name), err_msg=name)
+            back = pool.label_codes_report(codes, dec, clearance_limit=0.05)  # and back to the first
+            np.testing.assert_array_equal(back.labels.pd, got.labels.pd)
+            scratch = pool._scratch.name
+            decoders = [f for f in os.listdir(scratch) if f.endswith(".decoder.pkl")]
+            assert len(decoders) == 1, "one decoder file at a time"
+    if workers:
+        assert not os.path.exists(scratch), "close() removes the scratch folder"

@@ -40,6 +40,7 @@ def test_shipped_configs_are_valid(preset):
     ("handler.repair.delta=0", "handler.repair: handler.repair RepairSettings"),
     ("labeling.pool.timeout=0", "labeling.pool.timeout=0: must be > 0 seconds"),
     ("labeling.pool.max_restarts=-1", "labeling.pool.max_restarts=-1: must be an integer >= 0"),
+    ("labeling.data_in_process=-5", "labeling.data_in_process=-5: must be an integer >= 0"),
     ("labeling.pool.executor=spark", "labeling.pool.executor='spark': use one of local (this machine's worker "
                                      "processes), dask"),
     ("labeling.pool.scheduler=tcp://h:8786", "labeling.pool.scheduler='tcp://h:8786': only used with "

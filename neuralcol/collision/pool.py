@@ -65,7 +65,9 @@ import concurrent.futures as cf
 import logging
 import multiprocessing
 import os
+import pickle
 import signal
+import tempfile
 import weakref
 from concurrent.futures.process import BrokenProcessPool
 from typing import NamedTuple
@@ -98,7 +100,9 @@ DASK_INSTALL = 'pip install "dask[distributed]"'
 # The labeler of a worker process of a LabelPool, set once by `_init_worker` (the process's own state;
 # never set in the parent process).
 _WORKER_LABELER: ExactLabeler | None = None
-_WORKER_DECODER = None  # the codes -> vertices decoder of label_codes_report, sent once per worker like the labeler
+# The codes -> vertices decoder of label_codes_report a worker holds: (the file it was read from, the decoder). The
+# pool pickles each new decoder once into a file of its scratch folder; a worker reads it at its first chunk of codes.
+_WORKER_DECODER: tuple[str, object] | None = None
 
 
 class LabelFailure(NamedTuple):
@@ -140,14 +144,18 @@ def format_failures(failures: list[LabelFailure], n: int) -> str:
     return f"{len(failures)} of {n} meshes could not be labelled: {shown}{more}"
 
 
-def _init_worker(labeler: ExactLabeler, decoder=None) -> None:
-    """Initializer of the pool's worker processes: keep the labeler (and the decoder of
-    :meth:`LabelPool.label_codes_report`), sent once per worker, and warm it up
-    (:func:`~neuralcol.collision.pool_common.warm_up`) before the worker takes a chunk, outside any chunk's
-    timeout."""
-    global _WORKER_LABELER, _WORKER_DECODER
-    _WORKER_LABELER, _WORKER_DECODER = labeler, decoder
-    warm_up(labeler)
+def _init_worker(labeler_file: str) -> None:
+    """Initializer of the pool's worker processes: read the labeler the pool pickled into ``labeler_file``, keep it
+    and warm it up (:func:`~neuralcol.collision.pool_common.warm_up`) before the worker takes a chunk, outside any
+    chunk's timeout.
+
+    The labeler travels by file, not as the initializer's argument: a spawned worker reads its arguments only after
+    importing the parent's main module, and the parent's write of more than a pipe's 64 KB waits for that read, so
+    the workers started one after another (8 s for two on 2 cores, 4 s together)."""
+    global _WORKER_LABELER
+    with open(labeler_file, "rb") as f:
+        _WORKER_LABELER = pickle.load(f)
+    warm_up(_WORKER_LABELER)
 
 
 def require_distributed() -> None:
@@ -172,12 +180,20 @@ def _label_chunk(chunk: np.ndarray, clearance_limit: float | None = None) -> lis
     return label_chunk(_WORKER_LABELER, chunk, clearance_limit)
 
 
-def _label_code_chunk(codes: np.ndarray, clearance_limit: float | None = None) -> list[Label | str]:
-    """Labels of a chunk of codes (C, D), decoded here by the decoder :func:`_init_worker` installed."""
-    if _WORKER_LABELER is None or _WORKER_DECODER is None:
-        raise RuntimeError("LabelPool worker has no labeler or decoder; _label_code_chunk must run in a pool made "
-                           "by LabelPool.label_codes_report")
-    return label_code_chunk(_WORKER_LABELER, _WORKER_DECODER, codes, clearance_limit)
+def _worker_decoder(path: str):
+    """The decoder pickled at ``path`` (read once per worker and decoder, kept until another is asked for)."""
+    global _WORKER_DECODER
+    if _WORKER_DECODER is None or _WORKER_DECODER[0] != path:
+        with open(path, "rb") as f:
+            _WORKER_DECODER = (path, pickle.load(f))
+    return _WORKER_DECODER[1]
+
+
+def _label_code_chunk(codes: np.ndarray, clearance_limit: float | None, decoder_file: str) -> list[Label | str]:
+    """Labels of a chunk of codes (C, D), decoded here by the decoder pickled at ``decoder_file``."""
+    if _WORKER_LABELER is None:
+        raise RuntimeError("LabelPool worker has no labeler; _label_code_chunk must run in a pool made by LabelPool")
+    return label_code_chunk(_WORKER_LABELER, _worker_decoder(decoder_file), codes, clearance_limit)
 
 
 def _death_reason(exit_codes: list[int | None]) -> str:
@@ -203,8 +219,9 @@ class LabelPool:
     * ``workers`` 0 or 1 (``executor="local"``): in this process.
     * ``workers >= 2`` (``executor="local"``): a :class:`~concurrent.futures.ProcessPoolExecutor` with
       ``workers`` processes, started (``mp_context``, default ``"spawn"``) at the first :meth:`label` call and
-      reused until :meth:`close`. The labeler is sent once to each worker; each task carries only a chunk of
-      ``chunk_size`` meshes. With ``"spawn"`` the workers re-import the caller's main module: guard scripts with
+      reused until :meth:`close`. The labeler is pickled into the pool's scratch folder (removed by
+      :meth:`close`) and read once by each worker as it starts; each task carries only a chunk of ``chunk_size``
+      meshes. With ``"spawn"`` the workers re-import the caller's main module: guard scripts with
       ``if __name__ == "__main__":``.
     * ``executor="dask"``: a dask.distributed cluster, at ``scheduler`` or a ``LocalCluster`` of ``workers``
       processes x 1 thread started here (see the module docstring). The labeler is sent once to every worker;
@@ -305,7 +322,9 @@ class LabelPool:
         self._finalizer: weakref.finalize | None = None
         self._procs: list = []  # the worker processes of _own_executor (multiprocessing.Process)
         self._pids: set[int] = set()  # their pids, as reported by the start-up probes
-        self._decoder = None  # the decoder the workers hold (label_codes_report)
+        self._decoder = None  # the decoder of the last label_codes_report on worker processes
+        self._decoder_file: str | None = None  # where it is pickled for the workers (in _scratch)
+        self._scratch: tempfile.TemporaryDirectory | None = None  # the pool's own folder, removed by close()
 
     # ------------------------------------------------------------------ lifecycle
     def _process_executor(self) -> cf.ProcessPoolExecutor:
@@ -313,7 +332,7 @@ class LabelPool:
         if self._own_executor is None:
             executor = cf.ProcessPoolExecutor(
                 max_workers=self.workers, mp_context=multiprocessing.get_context(self.mp_context),
-                initializer=_init_worker, initargs=(self.labeler, self._decoder))
+                initializer=_init_worker, initargs=(self._labeler_file(),))
             self._own_executor = executor
             # shut the workers down if the pool is dropped without close()
             self._finalizer = weakref.finalize(self, executor.shutdown, wait=False, cancel_futures=True)
@@ -377,6 +396,36 @@ class LabelPool:
         session, self._dask = self._dask, None
         if session is not None:
             session.close()
+        scratch, self._scratch = self._scratch, None
+        self._decoder = self._decoder_file = None
+        if scratch is not None:
+            scratch.cleanup()
+
+    def _scratch_folder(self) -> str:
+        """The pool's own temporary folder (made on first need, removed by :meth:`close`)."""
+        if self._scratch is None:
+            self._scratch = tempfile.TemporaryDirectory(prefix="neuralcol-pool-")
+        return self._scratch.name
+
+    def _labeler_file(self) -> str:
+        """The labeler pickled into the scratch folder (at every start: workers restarted later get the labeler of
+        then), where the starting workers read it."""
+        path = os.path.join(self._scratch_folder(), "labeler.pkl")
+        with open(path + ".tmp", "wb") as f:
+            pickle.dump(self.labeler, f, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(path + ".tmp", path)
+        return path
+
+    def _share_decoder(self, decoder) -> None:
+        """Pickle ``decoder`` once into the pool's scratch folder, where the workers read it at their next chunk of
+        codes (they keep running: a worker start costs seconds, a decoder's pickle milliseconds)."""
+        old = self._decoder_file
+        fd, path = tempfile.mkstemp(suffix=".decoder.pkl", dir=self._scratch_folder())
+        with os.fdopen(fd, "wb") as f:
+            pickle.dump(decoder, f, protocol=pickle.HIGHEST_PROTOCOL)
+        self._decoder, self._decoder_file = decoder, path
+        if old is not None:  # every chunk of the previous call has finished: no worker reads it again
+            os.unlink(old)
 
     def __enter__(self) -> LabelPool:
         return self
@@ -446,15 +495,15 @@ class LabelPool:
 
     def label_codes_report(self, codes, decoder, clearance_limit: float | None = None) -> LabelReport:
         """:meth:`label_report` of the meshes ``decoder`` makes of latent codes, decoded where they are labeled:
-        on the pool's worker processes (``workers`` >= 2; the decoder is sent to them once, like the labeler, and
-        a new decoder restarts them), chunk by chunk in this process (``workers`` 0 or 1), or here before the
-        chunks leave (dask, a user executor). Non-finite decoded meshes are reported as ``"non-finite
-        vertices"``.
+        on the pool's worker processes (``workers`` >= 2; a new decoder is pickled once into the pool's scratch
+        folder and each worker reads it at its first chunk, without restarting), chunk by chunk in this process
+        (``workers`` 0 or 1), or here before the chunks leave (dask, a user executor). Non-finite decoded meshes are
+        reported as ``"non-finite vertices"``.
 
         Args:
             codes: (B, D) float array.
-            decoder: picklable callable, codes (C, D) -> vertices (C, V, 3); the same object on every call keeps
-                the workers (e.g. :class:`~neuralcol.samples.oracle.SpaceDecoder`).
+            decoder: picklable callable, codes (C, D) -> vertices (C, V, 3); the same object on every call is
+                pickled once (e.g. :class:`~neuralcol.samples.oracle.SpaceDecoder`).
             clearance_limit: as :meth:`label`.
         """
         codes = np.ascontiguousarray(np.asarray(codes, dtype=np.float32))
@@ -465,8 +514,7 @@ class LabelPool:
             return self.label_report(decoder(codes) if len(codes) else np.zeros((0, self.labeler.n_vertices, 3)),
                                      clearance_limit=limit)
         if self.workers >= 2 and decoder is not self._decoder:
-            self._discard_executor(kill=False)  # the workers get the new decoder when they start again
-            self._decoder = decoder
+            self._share_decoder(decoder)
         report = self._run(codes, clearance_limit=limit, decoder=decoder)
         if report.failures:
             log.warning("%s: %s", self.desc, format_failures(report.failures, len(codes)))
@@ -525,8 +573,9 @@ class LabelPool:
             task = queue[0]
             chunk = v[task.idx]
             if own:
-                fut = self._process_executor().submit(_label_chunk if decoder is None else _label_code_chunk, chunk,
-                                                      batch.clearance_limit)
+                executor = self._process_executor()
+                fut = (executor.submit(_label_chunk, chunk, batch.clearance_limit) if decoder is None else
+                       executor.submit(_label_code_chunk, chunk, batch.clearance_limit, self._decoder_file))
             else:
                 fut = self._user_executor.submit(label_chunk, self.labeler, chunk, batch.clearance_limit)
             in_flight[fut] = (queue.popleft(), clock())

@@ -76,7 +76,10 @@ def data(ctx: RunContext) -> DataResult:
     feats = ctx.features
     t_encode = time.perf_counter() - t0
     recon, acap_metrics = acap_round_trip(ds, feats)
-    with ctx.pool(ctx.labeler(), desc="labeling data set") as pool:
+    # a small data set is labeled here: the worker processes would take longer to start than the labels
+    here = len(ds) <= int(cfg.labeling.get("data_in_process", 0))
+    local = {"workers": 0, "executor": "local", "scheduler": None} if here else {}
+    with ctx.pool(ctx.labeler(), desc="labeling data set", **local) as pool:
         label_metrics = dataset_labels(ds, pool)
     metrics = {
         "dataset": {"name": cfg.dataset.name, "source": ds.source, "n_meshes": len(ds),

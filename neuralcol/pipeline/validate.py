@@ -105,6 +105,9 @@ def config_problems(cfg: DictConfig) -> list[str]:
         need("autoencoder.interp_t", lambda v: len(v) == 2 and float(v[0]) <= float(v[1]),
              "must be [lo, hi] with lo <= hi, e.g. [0.0, 1.0]")
     need("labeling.pool.workers", lambda v: is_int(v) and v >= 0, "must be an integer >= 0 (0 or 1: in-process)")
+    if _get(cfg, "labeling.data_in_process") is not None:
+        need("labeling.data_in_process", lambda v: is_int(v) and v >= 0,
+             "must be an integer >= 0 (the most meshes of a data set labeled in this process; 0: always the pool)")
     if _get(cfg, "labeling.pool.timeout") is not None:
         need("labeling.pool.timeout", lambda v: float(v) > 0, "must be > 0 seconds, or null for no limit")
     need("labeling.pool.max_restarts", lambda v: is_int(v) and v >= 0, "must be an integer >= 0")

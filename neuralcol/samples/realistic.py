@@ -128,7 +128,8 @@ def realistic_set(vertices, features, acap, heldout, pool, cfg, folder: str | Pa
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **meshes._asdict(), pd=pd, settings=json.dumps(settings))
+            # uncompressed: float64 vertices shrink by ~8 % under zlib, which took 7 s a set (0.25 s raw)
+            np.savez(fh, **meshes._asdict(), pd=pd, settings=json.dumps(settings))
     return meshes, pd, False
 
 
