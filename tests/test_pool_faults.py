@@ -337,5 +337,6 @@ def test_codes_decoded_where_they_are_labeled_get_the_labels_of_their_meshes(set
             scratch = pool._scratch.name
             decoders = [f for f in os.listdir(scratch) if f.endswith(".decoder.pkl")]
             assert len(decoders) == 1, "one decoder file at a time"
+            assert os.stat(scratch).st_mode & 0o777 == 0o700, "the pickles are this user's alone"
     if workers:
         assert not os.path.exists(scratch), "close() removes the scratch folder"

@@ -281,9 +281,13 @@ def test_no_unpickling_load_is_left_in_the_code():
     assert all(any(str(p) == q and line.strip() == t for p, _, line in lines) for q, t in IPC), "IPC: stale entry"
 
 
-# unpickling that is not reading a file: bytes this process pickled for its own label-pool workers (as
-# multiprocessing does with every task), so that torch's shared-memory tensors stay out of the workers
-IPC = {("neuralcol/samples/oracle.py", 'self.space = pickle.loads(state["space_bytes"])')}
+# unpickling that is not reading a user's file: bytes this process pickled for its own label-pool workers (as
+# multiprocessing does with every task), so that torch's shared-memory tensors stay out of the workers; and the
+# labeler and decoder the pool pickled into its own temporary folder (tempfile: mode 0700, removed by close()),
+# which its workers read as they start
+IPC = {("neuralcol/samples/oracle.py", 'self.space = pickle.loads(state["space_bytes"])'),
+       ("neuralcol/collision/pool.py", "_WORKER_LABELER = pickle.load(f)"),
+       ("neuralcol/collision/pool.py", "_WORKER_DECODER = (path, pickle.load(f))")}
 
 
 def test_load_run_refuses_a_config_naming_foreign_callables(tmp_path, tube_space):
