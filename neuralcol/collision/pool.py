@@ -324,6 +324,7 @@ class LabelPool:
         self._pids: set[int] = set()  # their pids, as reported by the start-up probes
         self._decoder = None  # the decoder of the last label_codes_report on worker processes
         self._decoder_file: str | None = None  # where it is pickled for the workers (in _scratch)
+        self._decoders_shared = 0  # decoders pickled so far (each file's name)
         self._scratch: tempfile.TemporaryDirectory | None = None  # the pool's own folder, removed by close()
 
     # ------------------------------------------------------------------ lifecycle
@@ -407,23 +408,28 @@ class LabelPool:
             self._scratch = tempfile.TemporaryDirectory(prefix="neuralcol-pool-")
         return self._scratch.name
 
-    def _labeler_file(self) -> str:
-        """The labeler pickled into the scratch folder (at every start: workers restarted later get the labeler of
-        then), where the starting workers read it."""
-        path = os.path.join(self._scratch_folder(), "labeler.pkl")
+    def _pickle_to_scratch(self, obj, name: str) -> str:
+        """Pickle ``obj`` into ``name`` in the scratch folder (written whole, then renamed: a starting worker never
+        reads half a file); its path."""
+        path = os.path.join(self._scratch_folder(), name)
         with open(path + ".tmp", "wb") as f:
-            pickle.dump(self.labeler, f, protocol=pickle.HIGHEST_PROTOCOL)
+            pickle.dump(obj, f, protocol=pickle.HIGHEST_PROTOCOL)
         os.replace(path + ".tmp", path)
         return path
 
+    def _labeler_file(self) -> str:
+        """The labeler pickled into the scratch folder (at every start: workers restarted later get the labeler of
+        then), where the starting workers read it."""
+        return self._pickle_to_scratch(self.labeler, "labeler.pkl")
+
     def _share_decoder(self, decoder) -> None:
         """Pickle ``decoder`` once into the pool's scratch folder, where the workers read it at their next chunk of
-        codes (they keep running: a worker start costs seconds, a decoder's pickle milliseconds)."""
+        codes (they keep running: a worker start costs seconds, a decoder's pickle milliseconds). Each decoder gets
+        a new name, which is how a worker knows its own is stale."""
         old = self._decoder_file
-        fd, path = tempfile.mkstemp(suffix=".decoder.pkl", dir=self._scratch_folder())
-        with os.fdopen(fd, "wb") as f:
-            pickle.dump(decoder, f, protocol=pickle.HIGHEST_PROTOCOL)
-        self._decoder, self._decoder_file = decoder, path
+        self._decoders_shared += 1
+        self._decoder_file = self._pickle_to_scratch(decoder, f"{self._decoders_shared}.decoder.pkl")
+        self._decoder = decoder
         if old is not None:  # every chunk of the previous call has finished: no worker reads it again
             os.unlink(old)
 
