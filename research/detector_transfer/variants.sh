@@ -15,3 +15,8 @@ BODY_VARIANTS[summaries_rows4]="detector.geometry.summaries=true ${BODY_VARIANTS
 # close it is; registered after the seed-0 screening of the four above, for the handler's descent)
 VARIANTS[summaries_smooth_rows4]="${VARIANTS[summaries_rows4]} detector.geometry.summary_form=smooth"
 BODY_VARIANTS[summaries_smooth_rows4]="${BODY_VARIANTS[summaries_rows4]} detector.geometry.summary_form=smooth"
+# timing_base / timing_candidate: seed 0 of today's default and of the candidate (summaries_rows4; anny_body with its
+# calibration set drawn from 3x the candidates), run alone one after the other with warm caches for criteria (d), (e)
+VARIANTS[timing_base]=""
+VARIANTS[timing_candidate]="${VARIANTS[summaries_rows4]}"
+BODY_VARIANTS[timing_candidate]="${BODY_VARIANTS[summaries_rows4]} realistic.calibration.scale=3"
