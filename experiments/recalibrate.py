@@ -36,6 +36,19 @@ def _line(name: str, block: dict) -> str:
         f"{block[k]['n_colliding']}, accuracy {block[k]['accuracy']:.3f}" for k in ("calibration", "test"))
 
 
+def folder_for(given: Path | None, env: str, recorded: str | None, fallback: str) -> tuple[Path, str]:
+    """The folder a recalibration reads, and where that choice came from: ``given`` on the command line, else the
+    environment variable ``env``, else the run's ``recorded`` folder (its ``paths.*`` setting) where that folder exists,
+    else ``fallback``. Reading the run's own cache spares labeling its realistic sets a second time."""
+    if given is not None:
+        return Path(given), "command line"
+    if os.environ.get(env):
+        return Path(os.environ[env]), env
+    if recorded and "${" not in str(recorded) and Path(recorded).is_dir():
+        return Path(recorded), "the run's own setting"
+    return Path(fallback), "default"
+
+
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m experiments.recalibrate", description=__doc__.splitlines()[0])
@@ -48,19 +61,28 @@ def main(argv: list[str] | None = None) -> int:
                         help="fresh U(Z) codes that score a package's new threshold (it has no test set)")
     parser.add_argument("--handler", type=int, default=500,
                         help="colliding fresh codes the handler is measured on again at the new threshold (0: skip)")
-    parser.add_argument("--cache", type=Path, default=Path(os.environ.get("NEURALCOL_CACHE", ".cache")))
-    parser.add_argument("--data", type=Path, default=Path(os.environ.get("NEURALCOL_DATA", "data")))
+    parser.add_argument("--cache", type=Path, default=None,
+                        help="label cache (default: $NEURALCOL_CACHE, else the run's own paths.cache_dir where that "
+                             "folder exists, else .cache)")
+    parser.add_argument("--data", type=Path, default=None,
+                        help="folder of the data sets (default: $NEURALCOL_DATA, else the run's own paths.data_dir "
+                             "where that folder exists, else data)")
     parser.add_argument("--out", type=Path, default=None, help="also write the measurement here (JSON)")
     a = parser.parse_args(argv)
     rd = RunDir(a.run_dir)
     if not rd.metrics.is_file() or not rd.config.is_file():
         raise UserInputError(f"{a.run_dir}: not a finished run or a package (no metrics.json or .hydra/config.yaml); "
                              "give the directory of a finished `python -m experiments.run`")
+    cfg = OmegaConf.load(rd.config)
+    recorded = {k: OmegaConf.select(cfg, f"paths.{k}", throw_on_resolution_failure=False)
+                for k in ("cache_dir", "data_dir")}
+    a.cache, cache_from = folder_for(a.cache, "NEURALCOL_CACHE", recorded["cache_dir"], ".cache")
+    a.data, data_from = folder_for(a.data, "NEURALCOL_DATA", recorded["data_dir"], "data")
     if not a.data.is_dir():
         raise UserInputError(f"--data {a.data}: no such folder; give the folder that holds the data sets "
                              "(or set NEURALCOL_DATA)")
+    print(f"labels cached in {a.cache.resolve()} ({cache_from}); data sets from {a.data.resolve()} ({data_from})")
     os.environ["NEURALCOL_CACHE"], os.environ["NEURALCOL_DATA"] = str(a.cache.resolve()), str(a.data.resolve())
-    cfg = OmegaConf.load(rd.config)
     cfg.paths.cache_dir, cfg.paths.data_dir = str(a.cache.resolve()), str(a.data.resolve())
     realistic = current_realistic(a.run_dir, a.overrides)
     sets = rule_sets(a.run_dir, cfg, realistic)

@@ -635,3 +635,19 @@ def test_round_gap_scores_a_saved_round_and_refuses_a_wrong_test_set(run_dir, tr
     (bad / "detector_rounds.json").write_text(json.dumps(rounds))
     with pytest.raises(SystemExit, match="not this run's test set"):
         round_gap([str(bad), "1", "--cache-dir", cache])
+
+
+def test_recalibrate_reads_the_run_s_own_cache_unless_told_otherwise(tmp_path, monkeypatch):
+    """experiments.recalibrate's folders: the command line, else the environment, else the run's recorded folder where
+    it exists (a recalibration that ignored it labeled a run's realistic sets a second time), else the default."""
+    from experiments.recalibrate import folder_for
+
+    run_cache, env_cache, flag = tmp_path / "run_cache", tmp_path / "env_cache", tmp_path / "flag"
+    run_cache.mkdir()
+    monkeypatch.delenv("NEURALCOL_CACHE", raising=False)
+    assert folder_for(None, "NEURALCOL_CACHE", str(run_cache), ".cache") == (run_cache, "the run's own setting")
+    assert folder_for(None, "NEURALCOL_CACHE", str(tmp_path / "gone"), ".cache") == (Path(".cache"), "default")
+    assert folder_for(None, "NEURALCOL_CACHE", None, ".cache") == (Path(".cache"), "default")
+    monkeypatch.setenv("NEURALCOL_CACHE", str(env_cache))
+    assert folder_for(None, "NEURALCOL_CACHE", str(run_cache), ".cache") == (env_cache, "NEURALCOL_CACHE")
+    assert folder_for(flag, "NEURALCOL_CACHE", str(run_cache), ".cache") == (flag, "command line")
