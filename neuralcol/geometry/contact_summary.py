@@ -343,29 +343,54 @@ class ContactSummary:
                           ) -> torch.Tensor:
         """``out`` (B, K, 4) with its three minima measured again, differentiably, at the pairs ``arg``
         (B, K, 3, 2) that attain them (and, in the smooth form, the count given its gradient over the pairs among
-        the candidates ``cand``)."""
+        the candidates ``cand``).
+
+        Every vertex those measurements read (both ends of each pair, and the faces around the vertex whose normal
+        the offset reads) is gathered from ``vertices`` in one indexing: its backward writes one (B, V, 3)
+        gradient, where an indexing per quantity would write, and add, one each (a handler's backward was
+        dominated by them)."""
         b, k, n_sum = out.shape
-        device, flat = vertices.device, out.reshape(b * k, n_sum)
+        device, dtype, flat = vertices.device, vertices.dtype, out.reshape(b * k, n_sum)
         if self.smooth:
-            columns = [_SmoothCount.apply(vertices, out[..., 0], self, cand, offsets).reshape(b * k)]
+            first = _SmoothCount.apply(vertices, out[..., 0], self, cand, offsets).reshape(b * k)
         else:
-            columns = [flat[:, 0]]
+            first = flat[:, 0]
+        pairs = arg.reshape(b * k, 3, 2)
+        slots = [np.flatnonzero(pairs[:, s, 0] >= 0) for s in range(3)]
+        if not any(len(sl) for sl in slots):
+            return torch.stack([first, flat[:, 1], flat[:, 2], flat[:, 3]], dim=1).view(b, k, n_sum)
+        n_vert = len(self.rest)
+        meshes = [sl // k for sl in slots]
+        ends = [pairs[sl, s] for s, sl in enumerate(slots)]  # (Q_s, 2) per minimum
+        a = ends[2][:, 0]  # the offset's normal is read at the pair's first vertex: the faces around it
+        deg = self._vf_ptr[a + 1] - self._vf_ptr[a]
+        owner = np.repeat(np.arange(len(a)), deg)
+        at = np.arange(len(owner)) - np.repeat(np.cumsum(deg) - deg, deg)
+        tri = self.faces[self._vf_idx[self._vf_ptr[a][owner] + at]]  # (T, 3)
+        keys = [(m[:, None] * n_vert + e).ravel() for m, e in zip(meshes, ends)]
+        keys.append((meshes[2][owner][:, None] * n_vert + tri).ravel())
+        need, back = np.unique(np.concatenate(keys), return_inverse=True)  # (mesh, vertex) rows read
+        g = vertices[torch.as_tensor(need // n_vert, device=device), torch.as_tensor(need % n_vert, device=device)]
+        sizes = np.cumsum([0] + [len(x) for x in keys])
+        rows = [torch.as_tensor(back[sizes[q]:sizes[q + 1]], device=device) for q in range(4)]
+        columns = [first]
         for s, col in enumerate((1, 2, 3)):
-            pairs = arg[:, :, s].reshape(b * k, 2)
-            slot = np.flatnonzero(pairs[:, 0] >= 0)
-            if not len(slot):
+            if not len(slots[s]):
                 columns.append(flat[:, col])
                 continue
-            mesh = slot // k
-            pr = pairs[slot]
-            mesh_t = torch.as_tensor(mesh, device=device)
-            i, j = (torch.as_tensor(pr[:, q], device=device) for q in range(2))
-            delta = vertices[mesh_t, j] - vertices[mesh_t, i]
-            rest = torch.as_tensor(self.rest, dtype=vertices.dtype, device=device)
+            r = rows[s].view(-1, 2)
+            delta = g[r[:, 1]] - g[r[:, 0]]
             d = delta.norm(dim=1)
-            ratio, dist = d / (rest[j] - rest[i]).norm(dim=1), d / self.radius
-            if col == 3:  # (x_b - x_a) . n_a over radius, clipped
-                normal = self._pair_normals(vertices, mesh, pr)[0]
+            e = ends[s]
+            d_rest = torch.as_tensor(np.linalg.norm(self.rest[e[:, 1]] - self.rest[e[:, 0]], axis=1), dtype=dtype,
+                                     device=device)
+            ratio, dist = d / d_rest, d / self.radius
+            if col == 3:  # (x_b - x_a) . n_a over radius, clipped; n_a area-weighted over the faces around a
+                t = g[rows[3].view(-1, 3)]  # (T, 3 corners, 3)
+                fn = torch.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], dim=1)  # twice the area times the normal
+                normal = torch.zeros(len(a), 3, dtype=dtype, device=device).index_add(
+                    0, torch.as_tensor(owner, device=device), fn)
+                normal = normal / normal.norm(dim=1, keepdim=True).clamp_min(torch.finfo(dtype).tiny)
                 value = ((delta * normal).sum(1) / self.radius).clamp(-self.clip, self.clip)
             else:
                 value = dist if col == 2 else ratio
@@ -373,27 +398,5 @@ class ContactSummary:
                 w = 1.0 - torch.maximum(dist, ratio / self.fold_ratio)
                 top = self.clip if col == 3 else 1.0
                 value = top - w * (top - value)
-            columns.append(flat[:, col].index_put((torch.as_tensor(slot, device=device),), value))
+            columns.append(flat[:, col].index_put((torch.as_tensor(slots[s], device=device),), value))
         return torch.stack(columns, dim=1).view(b, k, n_sum)
-
-    def _pair_normals(self, vertices: torch.Tensor, mesh: np.ndarray, pr: np.ndarray) -> tuple[torch.Tensor, ...]:
-        """The unit area-weighted vertex normals (differentiable) at both ends of every pair, (Q, 3) each: only
-        the faces around those vertices are read."""
-        n_vert = len(self.rest)
-        keys = np.concatenate([mesh * n_vert + pr[:, 0], mesh * n_vert + pr[:, 1]])
-        need, back = np.unique(keys, return_inverse=True)  # (mesh, vertex) pairs whose normal is read
-        nm, nv = need // n_vert, need % n_vert
-        deg = self._vf_ptr[nv + 1] - self._vf_ptr[nv]
-        owner = np.repeat(np.arange(len(need)), deg)
-        at = np.arange(len(owner)) - np.repeat(np.cumsum(deg) - deg, deg)
-        fid = self._vf_idx[self._vf_ptr[nv][owner] + at]
-        device = vertices.device
-        tri = torch.as_tensor(self.faces[fid], device=device)  # (T, 3)
-        m = torch.as_tensor(nm[owner], device=device)
-        a, b, c = (vertices[m, tri[:, q]] for q in range(3))
-        fn = torch.cross(b - a, c - a, dim=1)  # twice the area times the unit normal
-        n = torch.zeros(len(need), 3, dtype=vertices.dtype, device=device).index_add(
-            0, torch.as_tensor(owner, device=device), fn)
-        n = n / n.norm(dim=1, keepdim=True).clamp_min(torch.finfo(vertices.dtype).tiny)
-        back = torch.as_tensor(back, device=device)
-        return n[back[:len(pr)]], n[back[len(pr):]]
