@@ -58,7 +58,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="the FNR to hold (default: the run's detector.operating_fnr)")
     parser.add_argument("--write", action="store_true", help="move the run's threshold to the rule's")
     parser.add_argument("--fresh", type=int, default=10000,
-                        help="fresh U(Z) codes that score a package's new threshold (it has no test set)")
+                        help="fresh U(Z) codes that score a package's new threshold (it has no test set); a run "
+                             "with its own test set labels only as many as --handler needs")
     parser.add_argument("--handler", type=int, default=500,
                         help="colliding fresh codes the handler is measured on again at the new threshold (0: skip)")
     parser.add_argument("--cache", type=Path, default=None,

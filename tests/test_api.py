@@ -651,3 +651,21 @@ def test_recalibrate_reads_the_run_s_own_cache_unless_told_otherwise(tmp_path, m
     monkeypatch.setenv("NEURALCOL_CACHE", str(env_cache))
     assert folder_for(None, "NEURALCOL_CACHE", str(run_cache), ".cache") == (env_cache, "NEURALCOL_CACHE")
     assert folder_for(flag, "NEURALCOL_CACHE", str(run_cache), ".cache") == (flag, "command line")
+
+
+def test_recalibration_labels_only_the_fresh_codes_the_handler_needs_when_the_run_has_a_test_set(tmp_path):
+    """A package has no test set: its new threshold is scored on --fresh codes, all labeled. A run with its own test
+    set scores it there, so the fresh codes only feed the handler: as many as give --handler colliding codes at the
+    test set's rate of collisions, half as many again to spare, never more than --fresh (on a 13k-vertex body the
+    10 000 default cost ~40 minutes of labels for 500 handler inputs)."""
+    from neuralcol.api.recalibrate import fresh_codes_needed
+    from neuralcol.rundir import RunDir
+
+    rd = RunDir(tmp_path)
+    assert fresh_codes_needed(rd, 10000, 500) == 10000  # a package: every fresh code scores the threshold
+    np.savez(rd.test_predictions, logit=np.zeros(400), collides=np.arange(400) % 4 == 0)  # a quarter collide
+    assert fresh_codes_needed(rd, 10000, 500) == 3000  # 1.5 x 500 / 0.25
+    assert fresh_codes_needed(rd, 2000, 500) == 2000
+    assert fresh_codes_needed(rd, 10000, 0) == 0
+    np.savez(rd.test_predictions, logit=np.zeros(4), collides=np.zeros(4, bool))  # no collision: the rate's floor
+    assert fresh_codes_needed(rd, 100000, 500) == 15000

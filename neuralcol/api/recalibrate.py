@@ -13,7 +13,8 @@ meshes) and writes what depends on it:
 * ``metrics.json``: ``detector.operating_point`` (the new one, with ``previous`` and ``recalibrated``), the last
   round's U(Z) figures at the new threshold (from ``test_predictions.npz``, else on fresh U(Z) codes labeled exactly),
   ``realistic.detection`` on the new test set; the handler's figures, measured at the old threshold, move under
-  ``handling_at_previous_threshold`` and ``handling`` is measured again on fresh colliding U(Z) codes;
+  ``handling_at_previous_threshold`` and ``handling`` is measured again on fresh colliding U(Z) codes (for a run
+  with its own test set, only as many fresh codes are labeled as that needs: :func:`fresh_codes_needed`);
 * for a package: ``package.json``'s figures and checksums.
 
 The command: ``python -m experiments.recalibrate RUN_DIR [--write]`` (docs/detector.md).
@@ -141,6 +142,20 @@ def _handler_at_new_threshold(run, fresh, n: int) -> dict:
     return {**m, "inputs": {"n": int(len(pick)), "fresh_seed": UZ_SEED}}
 
 
+def fresh_codes_needed(rd: RunDir, n_fresh: int, n_handler: int) -> int:
+    """How many fresh U(Z) codes :func:`write_recalibration` labels: ``n_fresh`` where they score the new threshold
+    (a package: no test set of its own); for a run with its own test set they only feed the handler, so as many as
+    give ``n_handler`` colliding codes at the test set's rate of collisions, with half as many again to spare
+    (the first codes of the same sequence: the handler's inputs are the same ones ``n_fresh`` would give)."""
+    if not rd.test_predictions.is_file():
+        return int(n_fresh)
+    if n_handler <= 0:
+        return 0
+    with np.load(rd.test_predictions) as z:
+        rate = float(np.mean(z["collides"].astype(bool))) if len(z["collides"]) else 0.5
+    return min(int(n_fresh), int(np.ceil(1.5 * n_handler / max(rate, 0.05))))
+
+
 def write_recalibration(run, result: dict, sets: RuleSets, n_fresh: int = 10000, n_handler: int = 500) -> dict:
     """Move ``run``'s threshold to ``result["rule"]`` (from :func:`measure`) and rewrite the files that depend on it
     (see the module's docstring). Returns the new ``detector.operating_point``."""
@@ -150,7 +165,8 @@ def write_recalibration(run, result: dict, sets: RuleSets, n_fresh: int = 10000,
 
     rd = RunDir(run.run_dir)
     shift = float(result["shift"])
-    fresh = fresh_labels(run, n_fresh, UZ_SEED)
+    n_codes = fresh_codes_needed(rd, n_fresh, n_handler)
+    fresh = fresh_labels(run, n_codes, UZ_SEED) if n_codes else None
     uz = _uz_at(run, shift, fresh)
     fold_into_file(rd.detector, shift)
     if rd.cascade.is_file():
